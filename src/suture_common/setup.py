@@ -1,0 +1,25 @@
+"""ament_python package definition; `colcon build` and `pip install` both use it."""
+
+from setuptools import find_packages, setup
+
+package_name = "suture_common"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="Suture grasping maintainers",
+    maintainer_email="maintainers@suture-grasping.org",
+    description="Shared, ROS-free helpers: camera model, message <-> array conversion, stamp pairing, bag I/O, grasp frame convention.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+        ],
+    },
+)

@@ -1,0 +1,1 @@
+"""Stereo suture simulator with exact ground truth (ROS-free core and the `suture-sim` CLI)."""

@@ -1,0 +1,379 @@
+"""Random stereo scenes by topology, rendered into frames with exact ground truth.
+
+``generate_frame(config, index)`` is the simulator's one entry point: it draws a
+scene from ``np.random.default_rng([config.seed, index])`` (so any frame can be
+regenerated alone, in any order), renders both views and returns a
+``SimFrame`` holding the images and the ground truth of DESIGN.md:
+
+* masks of every visible thread (target and others; never the instrument);
+* the target's centreline from the cut tip projected into both views, as
+  (N, 3) arrays (u, v, visible). Both views use the same 3D samples, so row i
+  of the left and right sequences lie on the same image row; consecutive
+  samples are about 1 px apart in the left view. ``visible`` is 1.0 where the
+  target itself is the front-most surface at that pixel, 0.0 where another
+  strand, its own upper strand or an instrument covers it;
+* the 3D centreline from the cut tip (``path``, (M, 3) metres, every 0.5 mm, in
+  the left camera optical frame) and its length;
+* the grasp pose at ``config.grasp_arc_length`` (0.05 m) of arc from the tip,
+  oriented by ``suture_common.grasp`` (x along the thread, z the approach).
+
+Physical ranges (DESIGN and the paper's simulation): thread diameter 0.2 to
+0.6 mm, length 60 to 150 mm, lying on or draped above a tissue surface so that
+every target point is 50 to 150 mm from the camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from suture_common.camera import StereoCamera
+from suture_common.grasp import grasp_rotation, point_at_arc_length, rotation_to_quaternion
+from suture_sim import appearance, geometry, textures
+from suture_sim.render import INSTRUMENT, Lighting, Surface, Tube, ViewRender, render_view
+
+TOPOLOGIES = ("straight", "curved", "self_intersected", "crossed", "occluded")
+DOMAINS = ("legacy", "on-site")
+BACKGROUNDS = ("tissue", "phantom", "printed")
+
+#: Thread colours, linear RGB albedo (violet and undyed polyglactin, green, blue, black, white).
+THREAD_COLOURS = {
+    "violet": (0.16, 0.05, 0.30),
+    "green": (0.03, 0.22, 0.06),
+    "blue": (0.03, 0.08, 0.35),
+    "black": (0.015, 0.015, 0.02),
+    "white": (0.80, 0.80, 0.75),
+    "undyed": (0.60, 0.45, 0.25),
+}
+
+MIN_DEPTH, MAX_DEPTH = 0.050, 0.150
+MIN_LENGTH, MAX_LENGTH = 0.060, 0.150
+MIN_DIAMETER, MAX_DIAMETER = 0.0002, 0.0006
+BORDER_PX = 8
+PATH_STEP = 5e-4
+
+
+class SceneError(RuntimeError):
+    """No valid scene was found for the requested configuration (too many rejected draws)."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What to simulate. ``background`` None means: tissue for legacy, phantom or
+    printed (alternating) for on-site."""
+
+    topology: str
+    camera: StereoCamera
+    domain: str = "legacy"
+    seed: int = 0
+    background: str | None = None
+    grasp_arc_length: float = 0.05
+    frame_period_ns: int = 100_000_000
+    start_ns: int = 1_700_000_000_000_000_000
+
+    def __post_init__(self) -> None:
+        if self.topology not in (*TOPOLOGIES, "mixed"):
+            raise ValueError(f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGIES)}, mixed")
+        if self.domain not in DOMAINS:
+            raise ValueError(f"unknown domain {self.domain!r}; choose legacy or on-site")
+        if self.background is not None and self.background not in BACKGROUNDS:
+            raise ValueError(f"unknown background {self.background!r}; choose one of {', '.join(BACKGROUNDS)}")
+        if not 0 < self.grasp_arc_length < MIN_LENGTH:
+            raise ValueError(f"grasp arc length must be in (0, {MIN_LENGTH}) m, got {self.grasp_arc_length}")
+
+    def topology_of(self, index: int) -> str:
+        return TOPOLOGIES[index % len(TOPOLOGIES)] if self.topology == "mixed" else self.topology
+
+    def background_of(self, index: int) -> str:
+        if self.background is not None:
+            return self.background
+        return "tissue" if self.domain == "legacy" else ("phantom", "printed")[index % 2]
+
+
+@dataclass
+class SimFrame:
+    """One stereo frame and its ground truth (see module docstring for conventions).
+
+    Images are (H, W, 3) uint8 RGB; masks (H, W) uint8 in {0, 255}; sequences (N, 3)
+    float64 (u, v, visible); ``path`` (M, 3) metres; ``tip_hint`` (2,) left pixel.
+    """
+
+    index: int
+    stamp_ns: int
+    topology: str
+    background: str
+    camera: StereoCamera
+    left_image: np.ndarray
+    right_image: np.ndarray
+    left_mask: np.ndarray
+    right_mask: np.ndarray
+    left_sequence: np.ndarray
+    right_sequence: np.ndarray
+    path: np.ndarray
+    length: float
+    grasp_position: np.ndarray
+    grasp_quaternion: np.ndarray
+    tip_hint: np.ndarray
+    diameter: float
+    extras: dict = field(default_factory=dict)
+
+
+@dataclass
+class _Scene:
+    surface: Surface
+    tubes: list[Tube]
+    target: np.ndarray  # (N, 3) dense centreline from the cut tip, SAMPLE_STEP apart
+    radius: float
+
+
+def generate_frame(config: SimConfig, index: int) -> SimFrame:
+    """Draw, render and annotate frame ``index`` of ``config`` (deterministic)."""
+    topology = config.topology_of(index)
+    rng = np.random.default_rng([config.seed, index, TOPOLOGIES.index(topology)])
+    background = config.background_of(index)
+    camera = config.camera
+    for _ in range(60):
+        try:
+            scene = _sample_scene(topology, background, camera, rng)
+        except geometry.ShapeError:
+            continue
+        lighting = Lighting(
+            position=np.array([camera.baseline / 2, rng.uniform(-0.003, 0.003), -0.002]),
+            reference_distance=float(np.median(scene.target[:, 2])) * rng.uniform(0.85, 1.15),
+        )
+        left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
+        right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
+        frame = _annotate(config, index, topology, background, scene, left, right, rng)
+        if frame is not None:
+            return frame
+    raise SceneError(
+        f"could not draw a valid {topology} scene for {camera.width}x{camera.height} "
+        f"with fx={camera.fx:.0f} px after 60 tries; check the camera intrinsics"
+    )
+
+
+def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.random.Generator) -> _Scene:
+    radius = rng.uniform(MIN_DIAMETER, MAX_DIAMETER) / 2
+    length = rng.uniform(MIN_LENGTH, MAX_LENGTH)
+    shape = {"self_intersected": "loop", "straight": "straight"}.get(
+        topology, rng.choice(["curved", "curved", "straight"]) if topology in ("crossed", "occluded") else "curved"
+    )
+    curve = geometry.rotate(geometry.planar_curve(length, geometry.curvature_profile(shape, length, rng)),
+                            rng.uniform(0, 2 * np.pi))
+    self_crossings = geometry.find_crossings(curve)
+    if (shape == "loop") != bool(self_crossings):
+        raise geometry.ShapeError("loop topology needs a self-crossing and only loops may have one")
+    if any(c.angle < np.radians(20) or min(c.s_first, c.s_second) < 0.008 for c in self_crossings):
+        raise geometry.ShapeError("self-crossing too shallow or too close to the cut tip")
+    if geometry.has_close_approach(curve, None, self_crossings, 0.0015):
+        raise geometry.ShapeError("thread touches itself away from a crossing")
+
+    depth0, centre = _place(curve, camera, rng)
+    curve = curve - curve.mean(axis=0) + centre
+    planar = [curve]
+    crossings = [(0, 0, c) for c in self_crossings]
+    radii = [radius]
+    if topology == "crossed":
+        other, other_crossings = _crossing_thread(curve, length, rng)
+        planar.append(other)
+        radii.append(rng.uniform(MIN_DIAMETER, MAX_DIAMETER) / 2)
+        crossings += [(0, 1, c) for c in other_crossings]
+
+    extent = 1.5 * (camera.width / camera.fx) * MAX_DEPTH * 1.15
+    size = 512 if camera.width <= 800 else 1024
+    texture = textures.make_surface_texture(background, size, extent, rng)
+    surface = Surface(
+        depth0=depth0,
+        slope=rng.uniform(-0.15, 0.15, size=2),
+        texture=texture,
+        origin=np.array([camera.baseline / 2 - extent / 2, -extent / 2]),
+    )
+    base = [surface.depth(c[:, 0], c[:, 1]) - r for c, r in zip(planar, radii, strict=True)]
+    lifts = [geometry.random_lift(len(c), rng) for c in planar]
+    geometry.raise_over_crossings(lifts, base, crossings, radii, rng)
+    threads = [np.column_stack([c, b - lift]) for c, b, lift in zip(planar, base, lifts, strict=True)]
+
+    target = geometry.resample_by_arc_length(threads[0])
+    if geometry.arc_length(target) > MAX_LENGTH:
+        target = target[: int(MAX_LENGTH / geometry.SAMPLE_STEP) + 1]
+    if not (MIN_DEPTH <= target[:, 2].min() and target[:, 2].max() <= MAX_DEPTH):
+        raise geometry.ShapeError("thread leaves the 50-150 mm depth range")
+    if not _inside(camera, target, BORDER_PX):
+        raise geometry.ShapeError("target leaves a view")
+
+    colours = rng.choice(list(THREAD_COLOURS), size=len(threads))
+    tubes = [
+        Tube(
+            axis=target if k == 0 else thread,
+            radius=radii[k],
+            colour=np.array(THREAD_COLOURS[colours[k]]) * rng.uniform(0.8, 1.2),
+            owner=k,
+            specular=rng.uniform(0.05, 0.5),
+            braid=rng.choice([0.0, rng.uniform(0.05, 0.25)]),
+            shininess=rng.uniform(0.2, 0.45),
+        )
+        for k, thread in enumerate(threads)
+    ]
+    if topology == "occluded":
+        tubes += _instrument(target, camera, rng)
+    return _Scene(surface, tubes, target, radius)
+
+
+def _place(curve: np.ndarray, camera: StereoCamera, rng: np.random.Generator) -> tuple[float, np.ndarray]:
+    """Surface depth and planar centre so that the curve's footprint fits both views."""
+    size = curve.max(axis=0) - curve.min(axis=0)
+    usable = np.array([camera.width, camera.height]) - 2 * (BORDER_PX + 25)
+    per_depth = usable / np.array([camera.fx, camera.fy])
+    # Lifts, relief and slope bring parts of the thread up to ~20 % nearer the camera.
+    needed = 1.25 * max(size[0] / per_depth[0] + 4 * camera.baseline / per_depth[0], size[1] / per_depth[1])
+    low = max(MIN_DEPTH + 0.012, needed)
+    high = MAX_DEPTH - 0.025
+    if low > high:
+        raise geometry.ShapeError("thread too large for the field of view")
+    depth0 = rng.uniform(low, high)
+    slack = np.maximum(per_depth * depth0 / 1.2 - size, 0.0) / 2
+    centre = np.array([camera.baseline / 2, 0.0]) + rng.uniform(-slack, slack)
+    centre += (np.array([camera.cx - (camera.width - 1) / 2, camera.cy - (camera.height - 1) / 2])
+               / np.array([camera.fx, camera.fy]) * depth0)
+    return depth0, centre
+
+
+def _crossing_thread(
+    target: np.ndarray, target_length: float, rng: np.random.Generator
+) -> tuple[np.ndarray, list[geometry.Crossing]]:
+    """A second planar thread that crosses the target at 20 to 90 degrees."""
+    length = rng.uniform(0.04, 0.12)
+    shape = rng.choice(["straight", "curved"])
+    other = geometry.planar_curve(length, geometry.curvature_profile(shape, length, rng))
+    s_target = rng.uniform(0.25, 0.85) * target_length
+    s_other = rng.uniform(0.3, 0.7) * length
+    angle = np.radians(rng.uniform(20, 90)) * rng.choice([-1, 1])
+    t_target = geometry.tangent_at(target, s_target)
+    t_other = geometry.tangent_at(other, s_other)
+    heading = np.arctan2(t_target[1], t_target[0]) + angle - np.arctan2(t_other[1], t_other[0])
+    other = geometry.rotate(other, heading)
+    i_t = int(round(s_target / geometry.SAMPLE_STEP))
+    i_o = int(round(s_other / geometry.SAMPLE_STEP))
+    other = other - other[i_o] + target[i_t]
+    crossings = geometry.find_crossings(target, other)
+    if not crossings or any(c.angle < np.radians(15) or c.s_first < 0.008 for c in crossings):
+        raise geometry.ShapeError("crossing too shallow or too near the cut tip")
+    if geometry.has_close_approach(target, other, crossings, 0.0015):
+        raise geometry.ShapeError("second thread runs alongside the target")
+    if np.min(np.linalg.norm(other - target[0], axis=1)) < 0.008:
+        raise geometry.ShapeError("second thread covers the cut tip")
+    return other, crossings
+
+
+def _instrument(target: np.ndarray, camera: StereoCamera, rng: np.random.Generator) -> list[Tube]:
+    """A grey instrument shaft with two jaws whose tip lies just past the target, hiding a
+    stretch of it between 30 % and 80 % of its length."""
+    i = int(rng.uniform(0.3, 0.8) * len(target))
+    tangent = target[min(i + 5, len(target) - 1), :2] - target[max(i - 5, 0), :2]
+    tangent /= np.linalg.norm(tangent)
+    angle = np.radians(rng.uniform(40, 90)) * rng.choice([-1, 1])
+    direction = geometry.rotate(tangent[None, :], angle)[0]
+    shaft_radius = rng.uniform(0.0015, 0.003)
+    # The shaft passes over the target point on the left camera's ray through it, so it
+    # hides the thread in the left view and, a few pixels of disparity away, in the right.
+    tip_depth = target[i, 2] - rng.uniform(0.004, 0.012) - shaft_radius
+    over = target[i, :2] * tip_depth / target[i, 2]
+    tip = np.r_[over + direction * rng.uniform(0.003, 0.008), tip_depth]
+    elevation = np.tan(np.radians(rng.uniform(10, 35)))
+    t = np.linspace(0.0, 0.2, 200)
+    shaft = np.column_stack([tip[:2] - t[:, None] * direction, tip_depth - elevation * t])
+    shaft = shaft[: _frames_until_outside(camera, shaft, shaft_radius)]
+    grey = rng.uniform(0.25, 0.55)
+    tubes = [Tube(shaft, shaft_radius, np.array([grey, grey, grey * 1.05]), INSTRUMENT, specular=0.9, shininess=0.25)]
+    opening = np.radians(rng.uniform(5, 20))
+    jaw_length = rng.uniform(0.005, 0.008)
+    for sign in (-1, 1):
+        jaw_dir = geometry.rotate(direction[None, :], sign * opening)[0]
+        s = np.linspace(0.0, jaw_length, 20)
+        jaw = np.column_stack([tip[:2] + s[:, None] * jaw_dir, np.full(s.size, tip_depth)])
+        tubes.append(Tube(jaw, 0.35 * shaft_radius, np.array([0.12, 0.12, 0.13]), INSTRUMENT, specular=0.6))
+    return tubes
+
+
+def _frames_until_outside(camera: StereoCamera, axis: np.ndarray, radius: float) -> int:
+    """Number of leading axis points to keep: up to the first one whose tube lies wholly
+    outside both views (or nearer than 2 cm), so that no pixel is spent off-screen."""
+    gone = np.ones(len(axis), dtype=bool)
+    reach = radius * camera.fx / np.maximum(axis[:, 2], 1e-3)
+    for view in ("left", "right"):
+        uv = camera.project(axis, view)
+        outside_x = (uv[:, 0] < -reach) | (uv[:, 0] > camera.width + reach)
+        gone &= outside_x | (uv[:, 1] < -reach) | (uv[:, 1] > camera.height + reach)
+    gone |= axis[:, 2] < 0.02
+    outside = np.flatnonzero(gone)
+    return int(outside[0]) + 1 if outside.size else len(axis)
+
+
+def _inside(camera: StereoCamera, points: np.ndarray, border: float) -> bool:
+    for view in ("left", "right"):
+        uv = camera.project(points, view)
+        if not (np.all(uv[:, 0] >= border) and np.all(uv[:, 0] <= camera.width - 1 - border)
+                and np.all(uv[:, 1] >= border) and np.all(uv[:, 1] <= camera.height - 1 - border)):
+            return False
+    return True
+
+
+def _visible(camera: StereoCamera, view: str, render: ViewRender, points: np.ndarray, radius: float) -> np.ndarray:
+    """1.0 where the target's own surface is front-most at the pixel of each point."""
+    uv = np.rint(camera.project(points, view)).astype(int)
+    owner = render.owner[uv[:, 1], uv[:, 0]]
+    front = render.depth[uv[:, 1], uv[:, 0]]
+    own_surface = np.abs(front - points[:, 2]) <= radius + 2e-4
+    return ((owner == 0) & own_surface).astype(np.float64)
+
+
+def _annotate(
+    config: SimConfig,
+    index: int,
+    topology: str,
+    background: str,
+    scene: _Scene,
+    left: ViewRender,
+    right: ViewRender,
+    rng: np.random.Generator,
+) -> SimFrame | None:
+    camera = config.camera
+    target = scene.target
+    # ~1 px spacing in the left view, the same 3D samples in both views.
+    left_uv = camera.project(target, "left")
+    pixel_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(left_uv, axis=0), axis=1))])
+    keep = np.unique(np.searchsorted(pixel_arc, np.arange(0.0, pixel_arc[-1], 1.0)))
+    samples = target[np.r_[keep[keep < len(target) - 1], len(target) - 1]]
+    visible_left = _visible(camera, "left", left, samples, scene.radius)
+    visible_right = _visible(camera, "right", right, samples, scene.radius)
+    if not (visible_left[:3].all() and visible_right[:3].all()):
+        return None  # the cut tip must be seen in both views
+    if topology == "occluded" and visible_left.all():
+        return None  # the instrument missed the target
+    path = target[:: int(round(PATH_STEP / geometry.SAMPLE_STEP))]
+    if not np.allclose(path[-1], target[-1]):
+        path = np.vstack([path, target[-1]])
+    position, tangent = point_at_arc_length(target, config.grasp_arc_length)
+    quaternion = rotation_to_quaternion(grasp_rotation(position, tangent))
+    look = appearance.sample_look(config.domain, rng)
+    hint_offset = rng.uniform(0, 3) * np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a)])
+    return SimFrame(
+        index=index,
+        stamp_ns=config.start_ns + index * config.frame_period_ns,
+        topology=topology,
+        background=background,
+        camera=camera,
+        left_image=appearance.apply_look(left.image, look, rng),
+        right_image=appearance.apply_look(right.image, look, rng),
+        left_mask=(left.thread_mask * 255).astype(np.uint8),
+        right_mask=(right.thread_mask * 255).astype(np.uint8),
+        left_sequence=np.column_stack([camera.project(samples, "left"), visible_left]),
+        right_sequence=np.column_stack([camera.project(samples, "right"), visible_right]),
+        path=path,
+        length=geometry.arc_length(target),
+        grasp_position=position,
+        grasp_quaternion=quaternion,
+        tip_hint=left_uv[0] + hint_offset,
+        diameter=2 * scene.radius,
+    )
