@@ -16,10 +16,11 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description="Grasp executor: safety checks and dry_run, dVRK (CRTK) and UR (ur_rtde) backends, executor_node.",
+    description=(
+        "Grasp executor: safety checks and dry_run, dVRK (CRTK) and UR (ur_rtde) backends, executor_node."
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [
-        ],
+        "console_scripts": [],
     },
 )

@@ -16,10 +16,12 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description="Shared, ROS-free helpers: camera model, message <-> array conversion, stamp pairing, bag I/O, grasp frame convention.",
+    description=(
+        "Shared, ROS-free helpers: camera model, message <-> array conversion, "
+        "bag I/O, grasp frame convention."
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [
-        ],
+        "console_scripts": [],
     },
 )

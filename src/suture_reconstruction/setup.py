@@ -16,10 +16,12 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description="Reconstruction stage: stereo pairing, triangulation, shape graph optimiser, grasp pose, reconstruction_node.",
+    description=(
+        "Reconstruction stage: stereo pairing, triangulation, shape graph optimiser, "
+        "grasp pose, reconstruction_node."
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [
-        ],
+        "console_scripts": [],
     },
 )

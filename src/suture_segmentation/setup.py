@@ -16,10 +16,11 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description="Suture segmentation stage: U-Net with transfer learning, inference backends, segmentation_node.",
+    description=(
+        "Suture segmentation stage: U-Net with transfer learning, inference backends, segmentation_node."
+    ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [
-        ],
+        "console_scripts": [],
     },
 )

@@ -16,12 +16,15 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description="Stereo suture simulator with exact ground truth; writes MCAP bags and PNG training folders.",
+    description=(
+        "Stereo suture simulator with exact ground truth; writes MCAP bags and PNG training folders."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "suture-sim = suture_sim.cli:main",
             "suture-sim-bench = suture_sim.bench:main",
+            "suture-bag-info = suture_sim.describe:main",
         ],
     },
 )

@@ -1,1 +1,4 @@
-"""Offline evaluation and benchmarks (suture-eval, issue 7); the only package allowed to import every stage."""
+"""Offline evaluation and benchmarks (suture-eval, not built yet: issue 7).
+
+The only package allowed to import every stage.
+"""

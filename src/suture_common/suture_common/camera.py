@@ -64,9 +64,7 @@ class StereoCamera:
     def P(self, view: str) -> np.ndarray:  # noqa: N802 - the name used by CameraInfo
         """3x4 projection matrix of ``view`` ('left' or 'right'), Tx = -fx * baseline on the right."""
         tx = 0.0 if _check_view(view) == "left" else -self.fx * self.baseline
-        return np.array(
-            [[self.fx, 0.0, self.cx, tx], [0.0, self.fy, self.cy, 0.0], [0.0, 0.0, 1.0, 0.0]]
-        )
+        return np.array([[self.fx, 0.0, self.cx, tx], [0.0, self.fy, self.cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
     def optical_centre(self, view: str) -> np.ndarray:
         """Position (3,) of the view's optical centre in the left optical frame, metres."""

@@ -30,7 +30,9 @@ def grasp_rotation(point: np.ndarray, tangent: np.ndarray) -> np.ndarray:
     tangent_norm = np.linalg.norm(tangent)
     ray_norm = np.linalg.norm(point)
     if not (np.isfinite(tangent_norm) and tangent_norm > 0 and ray_norm > 0):
-        raise DegenerateGraspFrameError("grasp frame needs a non-zero tangent and a point off the camera centre")
+        raise DegenerateGraspFrameError(
+            "grasp frame needs a non-zero tangent and a point off the camera centre"
+        )
     x_axis = tangent / tangent_norm
     ray = point / ray_norm
     approach = ray - np.dot(ray, x_axis) * x_axis

@@ -1,1 +1,4 @@
-"""Ordering stage (not built yet, issue 4): mask cleaning, centreline, cut tip, sequence search, ordering_node."""
+"""Ordering stage (not built yet, issue 4).
+
+Mask cleaning, centreline, cut tip, sequence search, ordering_node.
+"""

@@ -1,1 +1,4 @@
-"""Reconstruction stage (not built yet, issue 5): stereo pairing, triangulation, shape optimiser, grasp pose."""
+"""Reconstruction stage (not built yet, issue 5).
+
+Stereo pairing, triangulation, shape optimiser, grasp pose.
+"""

@@ -1,0 +1,285 @@
+"""Reading and writing rosbag2 bags with MCAP storage, without rclpy or rosbag2.
+
+A bag written here is a rosbag2 directory (format version 9)::
+
+    BAG/metadata.yaml     rosbag2 metadata, for ``ros2 bag info`` / ``ros2 bag play``
+    BAG/BAG.mcap          MCAP, ros2 profile, zstd-compressed chunks, ros2msg schemas embedded
+
+so ``ros2 bag`` on a full ROS 2 install and Foxglove both open it. Topics are
+recorded without offered QoS profiles, so ``ros2 bag play`` publishes them with
+its default QoS (reliable, volatile), which both sensor-data (best-effort) and
+reliable subscribers accept.
+
+Readers accept a bag directory (with ``metadata.yaml``), a directory holding
+exactly one ``.mcap`` file and no metadata (e.g. a copied or Foxglove-exported
+recording), or a single ``.mcap`` file (rosbags reads its summary section
+directly). Messages come in timestamp order.
+
+Every problem with a bag on disk (missing, not a bag, corrupt, existing or
+unwritable target) raises :class:`BagError`, a subclass of ``OSError`` so that
+command-line tools can report all file problems in one ``except OSError``.
+Misuse by the caller (an object that is not a rosbags message, a negative
+timestamp, two types on one topic) raises ``TypeError``/``ValueError``.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Collection, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from numbers import Integral
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+from rosbags.rosbag2 import (
+    CompressionFormat,
+    CompressionMode,
+    Reader,
+    ReaderError,
+    StoragePlugin,
+    Writer,
+    WriterError,
+)
+
+from suture_common.messages import TYPESTORE
+
+
+class BagError(OSError):
+    """A bag cannot be read or written; the text names the path and what to do."""
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One deserialised message of a bag.
+
+    ``message`` is a rosbags dataclass of :data:`suture_common.messages.TYPESTORE`;
+    ``timestamp_ns`` is the bag's receive (log) time in integer nanoseconds.
+    """
+
+    topic: str
+    msgtype: str
+    timestamp_ns: int
+    message: Any
+
+
+class BagWriter:
+    """Write a new MCAP rosbag2 bag; use as a context manager.
+
+    ``BagWriter(path)`` creates the directory ``path`` (which must not exist) on
+    entry; :meth:`write` registers each topic on first use. On a clean exit the
+    bag is finalised (MCAP summary and ``metadata.yaml``); if the ``with`` body
+    raises, the partial bag directory is removed, so a bag on disk is always
+    complete. ``compress`` selects zstd compression of MCAP chunks (readable by
+    ``ros2 bag``, Foxglove and the ``mcap`` tools without extra options).
+    """
+
+    def __init__(self, path: str | Path, compress: bool = True) -> None:
+        self.path = Path(path)
+        if self.path.suffix == ".mcap":
+            raise BagError(
+                f"{self.path}: BagWriter writes a rosbag2 directory (metadata.yaml + {self.path.stem}.mcap); "
+                "give a directory path without the .mcap suffix"
+            )
+        if self.path.exists() or self.path.is_symlink():
+            raise BagError(f"{self.path} exists already; choose a new bag path or delete the old bag first")
+        try:
+            self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+            if compress:
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        except WriterError as exc:
+            raise BagError(f"{self.path}: cannot create bag: {exc}") from exc
+        self._connections: dict[str, Any] = {}
+        self._open = False
+        self._created = False
+
+    def open(self) -> Self:
+        """Create the bag directory and MCAP file (done by ``with``)."""
+        if self._open:
+            raise BagError(f"{self.path}: bag is already open")
+        if self._created:
+            raise BagError(f"{self.path}: a BagWriter writes one bag once; create a new BagWriter")
+        try:
+            self._writer.open()
+        except (WriterError, OSError) as exc:
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise BagError(
+                f"cannot create bag directory {self.path}: {reason}; "
+                "check that the parent directory exists and is writable"
+            ) from exc
+        self._open = True
+        self._created = True
+        return self
+
+    def write(self, topic: str, message: Any, timestamp_ns: int) -> None:
+        """Append ``message`` (a rosbags message, e.g. from :mod:`suture_common.messages`) on ``topic``.
+
+        ``timestamp_ns`` is the record (log) time in integer nanoseconds; this
+        pipeline uses the message's header stamp. Messages may be written in any
+        time order; readers return them sorted.
+        """
+        if not self._open:
+            raise BagError(f"{self.path}: bag is not open; use 'with BagWriter(path) as bag:'")
+        msgtype = getattr(message, "__msgtype__", None)
+        if not isinstance(msgtype, str):
+            raise TypeError(
+                f"BagWriter.write needs a rosbags message (from suture_common.messages), got "
+                f"{type(message).__module__}.{type(message).__name__}"
+            )
+        if isinstance(timestamp_ns, bool) or not isinstance(timestamp_ns, Integral) or timestamp_ns < 0:
+            raise ValueError(f"timestamp_ns must be a non-negative int (nanoseconds), got {timestamp_ns!r}")
+        timestamp_ns = int(timestamp_ns)
+        if not isinstance(topic, str) or not topic.startswith("/"):
+            raise ValueError(f"topic {topic!r} must be absolute (start with '/')")
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+            self._connections[topic] = connection
+        elif connection.msgtype != msgtype:
+            raise ValueError(
+                f"topic {topic} already carries {connection.msgtype}; cannot also write {msgtype}"
+            )
+        self._writer.write(connection, timestamp_ns, TYPESTORE.serialize_cdr(message, msgtype))
+
+    def close(self) -> None:
+        """Finalise the bag (MCAP summary and metadata.yaml)."""
+        if not self._open:
+            return
+        self._open = False
+        try:
+            self._writer.close()
+        except (WriterError, OSError) as exc:
+            raise BagError(f"{self.path}: cannot finalise bag: {exc}") from exc
+
+    def abort(self) -> None:
+        """Stop writing and delete the partial bag directory."""
+        if self._open:
+            self._open = False
+            self._writer.abort()
+        if self._created:
+            shutil.rmtree(self.path, ignore_errors=True)
+
+    def __enter__(self) -> Self:
+        return self.open()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_val: BaseException | None,
+        exc_tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def read_messages(path: str | Path, topics: Collection[str] | None = None) -> Iterator[BagMessage]:
+    """Deserialised messages of the bag at ``path`` in timestamp order.
+
+    ``topics`` restricts the output; topics absent from the bag are ignored (use
+    :func:`bag_summary` to check for them). The bag is checked when this is
+    called, so a missing or invalid bag raises :class:`BagError` immediately; a
+    message type outside ROS 2 Jazzy's standard set raises it when reached.
+    """
+    raw = read_raw(path, topics)
+
+    def generate() -> Iterator[BagMessage]:
+        for topic, msgtype, timestamp, data in raw:
+            if msgtype not in TYPESTORE.types:
+                raise BagError(
+                    f"{path}: topic {topic} has type {msgtype}, which is not a ROS 2 Jazzy standard "
+                    "message; use read_raw for it or pass topics= to skip it"
+                )
+            yield BagMessage(topic, msgtype, timestamp, TYPESTORE.deserialize_cdr(data, msgtype))
+
+    return generate()
+
+
+def read_raw(
+    path: str | Path, topics: Collection[str] | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """``(topic, msgtype, timestamp_ns, cdr_bytes)`` of the bag at ``path`` in timestamp order.
+
+    ``msgtype`` is like ``'sensor_msgs/msg/Image'``; ``cdr_bytes`` is the CDR
+    serialisation with its 4-byte encapsulation header, as rclpy's
+    ``deserialize_message`` takes it. ``topics`` as in :func:`read_messages`.
+    """
+    source = _bag_source(path)
+    with _open_reader(source, path):  # check now, not at the first next()
+        pass
+    wanted = None if topics is None else set(_check_topics(topics))
+
+    def generate() -> Iterator[tuple[str, str, int, bytes]]:
+        with _open_reader(source, path) as reader:
+            connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+            if not connections:
+                return
+            try:
+                for connection, timestamp, data in reader.messages(connections=connections):
+                    yield connection.topic, connection.msgtype, timestamp, bytes(data)
+            except ReaderError as exc:
+                raise BagError(f"{path}: bag is corrupt: {exc}") from exc
+
+    return generate()
+
+
+def bag_summary(path: str | Path) -> dict[str, tuple[str, int]]:
+    """``{topic: (msgtype, message_count)}`` of the bag at ``path``, sorted by topic, from its index.
+
+    A topic recorded with several types (not written by this module) lists them as ``"a|b"``.
+    """
+    with _open_reader(_bag_source(path), path) as reader:
+        summary: dict[str, tuple[str, int]] = {}
+        for connection in reader.connections:
+            msgtype, count = summary.get(connection.topic, (connection.msgtype, 0))
+            if connection.msgtype not in msgtype.split("|"):  # several types on one topic: "a|b"
+                msgtype = f"{msgtype}|{connection.msgtype}"
+            summary[connection.topic] = (msgtype, count + connection.msgcount)
+        return dict(sorted(summary.items()))
+
+
+def _check_topics(topics: Collection[str]) -> Collection[str]:
+    if isinstance(topics, str):
+        raise TypeError(
+            f"topics must be a collection of topic names, got the string {topics!r}; use [{topics!r}]"
+        )
+    return topics
+
+
+def _bag_source(path: str | Path) -> Path:
+    """The path rosbags should open: the bag directory, or the .mcap file of a metadata-less directory."""
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"bag {path} does not exist")
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return path
+        mcaps = sorted(path.glob("*.mcap"))
+        if len(mcaps) == 1:
+            return mcaps[0]
+        found = f"{len(mcaps)} .mcap files" if mcaps else "no .mcap file"
+        raise BagError(
+            f"{path} is not a bag: it has no metadata.yaml and {found}; pass a rosbag2 bag directory "
+            "or a single .mcap file"
+        )
+    if path.suffix != ".mcap":
+        raise BagError(f"{path} is not a bag: expected a rosbag2 directory or a .mcap file")
+    return path
+
+
+@contextmanager
+def _open_reader(source: Path, shown: str | Path) -> Iterator[Reader]:
+    """An open rosbags Reader of ``source``; its errors become BagError naming ``shown``."""
+    try:
+        reader = Reader(source)
+        reader.open()
+    except PermissionError as exc:
+        raise BagError(f"{shown}: permission denied reading the bag ({exc.filename})") from exc
+    except (ReaderError, OSError, ValueError, KeyError) as exc:
+        raise BagError(f"{shown} is not a readable rosbag2/MCAP bag: {exc}") from exc
+    try:
+        yield reader
+    finally:
+        reader.close()

@@ -1,0 +1,83 @@
+"""rclpy glue shared by the nodes and node tests: message classes, CDR, QoS, spinning.
+
+This is the only module of ``suture_common`` that imports rclpy; everything else
+stays ROS-free. Messages built by :mod:`suture_common.messages` (rosbags
+dataclasses) become rclpy messages through their CDR bytes (:func:`to_rclpy`),
+which is also how bag messages are replayed (:func:`from_cdr`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.executors import Executor
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message, serialize_message
+
+from suture_common.messages import TYPESTORE
+
+SENSOR_DATA_QOS: QoSProfile = qos_profile_sensor_data
+"""Images: best effort, keep last 5, volatile (rclpy's sensor-data profile)."""
+
+RELIABLE_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
+"""Poses, sequences, commands: reliable, keep last 10, volatile."""
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``msgtype``, e.g. 'sensor_msgs/msg/Image' -> sensor_msgs.msg.Image.
+
+    The short form 'sensor_msgs/Image' is accepted too. Raises ValueError when the
+    name is malformed or its package is not installed.
+    """
+    parts = msgtype.split("/")
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or not all(parts) or parts[1] not in ("msg", "srv", "action"):
+        raise ValueError(f"message type {msgtype!r} is not of the form 'package/msg/Name'")
+    package, kind, name = parts
+    try:
+        module = importlib.import_module(f"{package}.{kind}")
+    except ImportError as exc:
+        wheel = "ros-jazzy-" + package.replace("_", "-")
+        raise ValueError(
+            f"no Python module for message package {package!r} ({exc}); "
+            f"install {wheel} or source its workspace"
+        ) from None
+    try:
+        cls = getattr(module, name)
+    except AttributeError:
+        raise ValueError(f"package {package} has no {kind} type {name!r}") from None
+    return cls
+
+
+def from_cdr(cdr_bytes: bytes | memoryview, msgtype: str) -> Any:
+    """Deserialise CDR bytes (with encapsulation header, as stored in bags) into an rclpy message."""
+    return deserialize_message(bytes(cdr_bytes), message_class(msgtype))
+
+
+def to_cdr(message: Any) -> bytes:
+    """CDR bytes of an rclpy message (the inverse of :func:`from_cdr`)."""
+    return bytes(serialize_message(message))
+
+
+def to_rclpy(message: Any) -> Any:
+    """The rclpy equivalent of a rosbags message (e.g. from :mod:`suture_common.messages`)."""
+    msgtype = message.__msgtype__
+    return from_cdr(TYPESTORE.serialize_cdr(message, msgtype), msgtype)
+
+
+def spin_until(executor: Executor, predicate: Callable[[], bool], timeout_s: float) -> bool:
+    """Spin ``executor`` until ``predicate()`` is true or ``timeout_s`` seconds pass.
+
+    Returns the final ``predicate()``, so tests can write ``assert spin_until(...)``.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            return bool(predicate())
+        executor.spin_once(timeout_sec=min(0.05, remaining))
+    return True
