@@ -40,7 +40,7 @@ pip=("$venv/bin/python" -m pip --disable-pip-version-check)
   2>&1 | grep -v "^WARNING: Location" || true
 packages=()
 for package in "$repo"/src/*/; do packages+=(-e "$package"); done
-"${pip[@]}" install --quiet --no-deps --no-build-isolation "${packages[@]}" \
+PYTHONWARNINGS=ignore "${pip[@]}" install --quiet --no-deps --no-build-isolation "${packages[@]}" \
   2>&1 | grep -v "^WARNING: Location" || true
 # The greps above hide the local-index noise but would hide a failure too:
 # check that the environment is complete before recording success.

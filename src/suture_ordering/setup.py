@@ -16,9 +16,7 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description=(
-        "Ordering stage: mask cleaning, centreline, cut tip, sequence search, ordering_node."
-    ),
+    description=("Ordering stage: mask cleaning, centreline, cut tip, sequence search, ordering_node."),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [],

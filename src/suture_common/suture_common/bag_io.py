@@ -24,6 +24,7 @@ timestamp, two types on one topic) raises ``TypeError``/``ValueError``.
 
 from __future__ import annotations
 
+import functools
 import shutil
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
@@ -44,6 +45,11 @@ from rosbags.rosbag2 import (
 )
 
 from suture_common.messages import TYPESTORE
+
+try:  # the zstd module rosbags itself uses
+    from compression import zstd
+except ImportError:
+    from backports import zstd
 
 
 class BagError(OSError):
@@ -72,11 +78,15 @@ class BagWriter:
     bag is finalised (MCAP summary and ``metadata.yaml``); if the ``with`` body
     raises, the partial bag directory is removed, so a bag on disk is always
     complete. ``compress`` selects zstd compression of MCAP chunks (readable by
-    ``ros2 bag``, Foxglove and the ``mcap`` tools without extra options).
+    ``ros2 bag``, Foxglove and the ``mcap`` tools without extra options);
+    ``compression_level`` is zstd's level (1 fast ... 19 small; 3 is zstd's default).
     """
 
-    def __init__(self, path: str | Path, compress: bool = True) -> None:
+    def __init__(self, path: str | Path, compress: bool = True, compression_level: int = 3) -> None:
         self.path = Path(path)
+        if not 1 <= compression_level <= 22:
+            raise ValueError(f"zstd compression level must be 1..22, got {compression_level}")
+        self._compression_level = compression_level if compress else None
         if self.path.suffix == ".mcap":
             raise BagError(
                 f"{self.path}: BagWriter writes a rosbag2 directory (metadata.yaml + {self.path.stem}.mcap); "
@@ -102,6 +112,12 @@ class BagWriter:
             raise BagError(f"{self.path}: a BagWriter writes one bag once; create a new BagWriter")
         try:
             self._writer.open()
+            if self._compression_level is not None:
+                # rosbags compresses MCAP chunks with zstd's default level and has no
+                # option for it; its MCAP storage exposes the compressor to replace.
+                self._writer.storage.compressor = functools.partial(
+                    zstd.compress, level=self._compression_level
+                )
         except (WriterError, OSError) as exc:
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             raise BagError(

@@ -95,6 +95,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="stereo baseline in metres (default 0.005; endoscopes: 0.004 to 0.006)",
     )
     parser.add_argument("--out", type=Path, help="bag directory to create (rosbag2, MCAP storage)")
+    parser.add_argument(
+        "--compression-level",
+        type=int,
+        choices=range(1, 23),
+        default=3,
+        metavar="1..22",
+        help="zstd level of the MCAP chunks (default 3; 19 for small committed bags)",
+    )
     parser.add_argument("--png-dir", type=Path, help="also write images/ and masks/ PNG folders here")
     parser.add_argument(
         "--workers", type=_positive(int), default=2, help="processes rendering frames (default 2)"
@@ -142,7 +150,7 @@ def run(args: argparse.Namespace) -> list[SimFrame]:
     if not args.quiet:
         frames = _progress(frames, args.frames)
     summaries = []
-    writer = BagWriter(args.out) if args.out is not None else None
+    writer = BagWriter(args.out, compression_level=args.compression_level) if args.out is not None else None
     try:
         if writer is not None:
             writer.open()

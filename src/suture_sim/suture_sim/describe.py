@@ -40,7 +40,9 @@ def describe(path: str) -> str:
         else:
             entry["size"] = f"{message.width}x{message.height} {message.encoding}"
     if frames:
-        lines.append("frames (stamp ns, topology, image, thread length, grasp point in left optical frame, tip hint):")
+        lines.append(
+            "frames (stamp ns, topology, image, thread length, grasp point in left optical frame, tip hint):"
+        )
     for stamp, entry in sorted(frames.items()):
         grasp = entry.get("grasp_mm")
         tip = entry.get("tip_px")

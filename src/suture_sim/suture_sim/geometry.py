@@ -69,7 +69,7 @@ def curvature_profile(topology: str, length: float, rng: np.random.Generator) ->
     * ``loop``: a curved base plus one bump of 2*pi + 0.4..1.3 rad turning, which
       makes the curve cross itself once.
     """
-    n = int(round(length / SAMPLE_STEP)) + 1
+    n = round(length / SAMPLE_STEP) + 1
     s = np.linspace(0.0, length, n)
     if topology == "straight":
         kappa = smooth_noise(n, n / 4, rng)
@@ -177,7 +177,9 @@ def tangent_at(curve: np.ndarray, arc: float) -> np.ndarray:
 
 
 def lift_onto_surface(
-    curve: np.ndarray, surface_depth: Callable[[np.ndarray, np.ndarray], np.ndarray], radius: float,
+    curve: np.ndarray,
+    surface_depth: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    radius: float,
     lift: np.ndarray,
 ) -> np.ndarray:
     """(N, 3) centreline: planar (x, y) samples resting on the surface, raised by ``lift``.
@@ -213,8 +215,8 @@ def raise_over_crossings(
         s_upper, s_lower = (
             (crossing.s_first, crossing.s_second) if over_first else (crossing.s_second, crossing.s_first)
         )
-        iu = min(int(round(s_upper / SAMPLE_STEP)), lifts[upper].size - 1)
-        il = min(int(round(s_lower / SAMPLE_STEP)), lifts[lower].size - 1)
+        iu = min(round(s_upper / SAMPLE_STEP), lifts[upper].size - 1)
+        il = min(round(s_lower / SAMPLE_STEP), lifts[lower].size - 1)
         z_upper = base_depths[upper][iu] - lifts[upper][iu]
         z_lower = base_depths[lower][il] - lifts[lower][il]
         deficit = z_upper - z_lower + radii[upper] + radii[lower] + 5e-5

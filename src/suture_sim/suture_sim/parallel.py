@@ -26,6 +26,7 @@ def generate_frames(config: SimConfig, indices: Iterable[int], workers: int = 1)
     if workers <= 1 or len(indices) < 2:
         yield from (generate_frame(config, i) for i in indices)
         return
-    context = multiprocessing.get_context("fork")
+    # spawn, not fork: forking after OpenCV or BLAS started threads can deadlock the child.
+    context = multiprocessing.get_context("spawn")
     with context.Pool(min(workers, len(indices)), initializer=_init_worker) as pool:
         yield from pool.imap(partial(generate_frame, config), indices, chunksize=1)

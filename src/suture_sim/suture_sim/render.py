@@ -68,7 +68,9 @@ class Surface:
         x = np.asarray(x)
         scale = np.float32(1.0 / self.texel)
         map_x = ((x - np.float32(self.origin[0])) * scale - np.float32(0.5)).astype(np.float32, copy=False)
-        map_y = ((np.asarray(y) - np.float32(self.origin[1])) * scale - np.float32(0.5)).astype(np.float32, copy=False)
+        map_y = ((np.asarray(y) - np.float32(self.origin[1])) * scale - np.float32(0.5)).astype(
+            np.float32, copy=False
+        )
         as_image = (lambda m: m) if x.ndim == 2 else (lambda m: m.reshape(1, -1))
         sampled = cv2.remap(
             field, as_image(map_x), as_image(map_y), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
@@ -197,10 +199,14 @@ def _draw_tubes(
     owner: np.ndarray,
 ) -> None:
     """Rasterise all tubes into ``image``, ``depth`` and ``owner`` in place."""
-    fragments = [f for f in (_tube_fragments(camera, view, tube, lighting) for tube in tubes) if f is not None]
+    fragments = [
+        f for f in (_tube_fragments(camera, view, tube, lighting) for tube in tubes) if f is not None
+    ]
     if not fragments:
         return
-    pix, z_front, owners, alpha, colour, core = (np.concatenate(parts) for parts in zip(*fragments, strict=True))
+    pix, z_front, owners, alpha, colour, core = (
+        np.concatenate(parts) for parts in zip(*fragments, strict=True)
+    )
     flat_depth = depth.reshape(-1)
     flat_owner = owner.reshape(-1)
     flat_image = image.reshape(-1, 3)
@@ -237,7 +243,12 @@ def _tube_fragments(
     step_px = np.linalg.norm(np.diff(uv, axis=0), axis=1)
     target = max(2.0, 0.5 * float(np.median(radius_px)))
     keep = np.unique(
-        np.concatenate([np.searchsorted(np.cumsum(np.r_[0, step_px]), np.arange(0, step_px.sum(), target)), [len(uv) - 1]])
+        np.concatenate(
+            [
+                np.searchsorted(np.cumsum(np.r_[0, step_px]), np.arange(0, step_px.sum(), target)),
+                [len(uv) - 1],
+            ]
+        )
     )
     uv, z, arc, radius_px, axis = uv[keep], z[keep], arc[keep], radius_px[keep], tube.axis[keep]
     p0, p1 = uv[:-1], uv[1:]
@@ -248,24 +259,33 @@ def _tube_fragments(
     cand = low[:, None, :] + offsets[None, :, :]  # (S, span^2, 2) integer pixels
     seg = np.repeat(np.arange(len(p0)), offsets.shape[0])
     cand = cand.reshape(-1, 2)
-    inside = (cand[:, 0] >= 0) & (cand[:, 0] < camera.width) & (cand[:, 1] >= 0) & (cand[:, 1] < camera.height)
+    inside = (
+        (cand[:, 0] >= 0) & (cand[:, 0] < camera.width) & (cand[:, 1] >= 0) & (cand[:, 1] < camera.height)
+    )
     cand, seg = cand[inside], seg[inside]
     if cand.size == 0:
         return None
     d = (p1 - p0)[seg]
     rel = cand - p0[seg]
     length_sq = np.maximum(np.sum(d * d, axis=1), 1e-12)
-    t = np.clip(np.sum(rel * d, axis=1) / length_sq, 0.0, 1.0)
+    t_raw = np.sum(rel * d, axis=1) / length_sq
+    t = np.clip(t_raw, 0.0, 1.0)
+    # Round caps between two segments only fill the outside of bends: with the axis
+    # tilted in depth they would otherwise poke through the neighbouring segment.
+    inner_cap = ((t_raw < 0) & (seg > 0)) | ((t_raw > 1) & (seg < len(p0) - 1))
     offset = rel - t[:, None] * d
     dist = np.linalg.norm(offset, axis=1)
     r_px = radius_px[seg] + t * (radius_px[seg + 1] - radius_px[seg])
     covered = dist <= r_px + 0.5
     if not np.any(covered):
         return None
-    cand, seg, t, dist, r_px, offset, d = (a[covered] for a in (cand, seg, t, dist, r_px, offset, d))
+    cand, seg, t, dist, r_px, offset, d, inner_cap = (
+        a[covered] for a in (cand, seg, t, dist, r_px, offset, d, inner_cap)
+    )
     z_axis = z[seg] + t * (z[seg + 1] - z[seg])
     metric_offset = dist * z_axis / camera.fx
     z_front = z_axis - np.sqrt(np.maximum(tube.radius**2 - metric_offset**2, 0.0))
+    z_front[inner_cap] += tube.radius
     core = dist <= np.maximum(r_px, MIN_CORE_RADIUS_PX)
     alpha = np.clip(np.minimum(r_px + 0.5 - dist, np.minimum(2.0 * r_px, 1.0)), 0.0, 1.0)
     # Cylinder shading: position across the tube in [-1, 1] gives the normal.

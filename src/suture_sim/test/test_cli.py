@@ -22,8 +22,25 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 def test_writes_bag_with_every_design_topic_and_png_folders(tmp_path, capsys):
     bag, png = tmp_path / "bag", tmp_path / "png"
-    code = main(["--topology", "mixed", "--frames", "5", "--seed", "3", "--resolution", "320x240",
-                 "--out", str(bag), "--png-dir", str(png), "--quiet", "--workers", "2"])
+    code = main(
+        [
+            "--topology",
+            "mixed",
+            "--frames",
+            "5",
+            "--seed",
+            "3",
+            "--resolution",
+            "320x240",
+            "--out",
+            str(bag),
+            "--png-dir",
+            str(png),
+            "--quiet",
+            "--workers",
+            "2",
+        ]
+    )
     assert code == 0
     assert "wrote 5 frames" in capsys.readouterr().out
     summary = bag_summary(bag)
@@ -71,7 +88,9 @@ def test_existing_output_is_not_overwritten(tmp_path):
 
 def test_impossible_intrinsics_fail_cleanly(tmp_path):
     # A 1 px focal length cannot see a thread at 50-150 mm large enough to draw.
-    result = _run("--topology", "straight", "--frames", "1", "--fx", "1", "--quiet", "--out", str(tmp_path / "b"))
+    result = _run(
+        "--topology", "straight", "--frames", "1", "--fx", "1", "--quiet", "--out", str(tmp_path / "b")
+    )
     assert result.returncode == 1
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     assert not (tmp_path / "b").exists()
