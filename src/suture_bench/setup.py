@@ -16,9 +16,11 @@ setup(
     zip_safe=True,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
-    description=("Offline evaluation and benchmarks over MCAP bags (suture-eval); depends on every stage."),
+    description="Offline evaluation and benchmarks over MCAP bags (suture-eval); depends on every stage.",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "suture-eval = suture_bench.cli:main",
+        ],
     },
 )

@@ -1,0 +1,315 @@
+"""Offline evaluation over MCAP bags: the same core functions as the nodes, scored against ground truth.
+
+``evaluate(paths, masks=..., sequences=...)`` walks every frame of the bags,
+runs the stages that the sources ask for, and returns the summary of DESIGN.md's
+evaluation contract (every key present; a value that could not be measured is
+None, with the reason in ``notes``):
+
+* ``masks="ground_truth"`` starts the ordering stage from the true masks;
+  ``"predicted"`` runs the segmentation stage (``suture_segmentation``).
+* ``sequences="ground_truth"`` starts the 3D stage from the true ordered
+  sequences (the visibility column dropped), isolating it; ``"predicted"`` runs the
+  ordering stage on the masks.
+
+Definitions (DESIGN.md): IoU, precision, recall and F1 pooled over the pixels of
+all frames; ordering success per ``suture_bench.ordering_metrics``; reconstruction
+error is the distance from each reconstructed path point to the true 3D
+centreline (mean over frames of the per-frame mean, max over frames of the
+per-frame max); grasp error is the 3D distance between predicted and true grasp
+points. Latencies are wall-clock milliseconds per stereo frame (medians).
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from suture_common import messages, topics
+from suture_common.bag_io import BagError, read_messages
+from suture_common.camera import StereoCamera
+
+FRAME_TOPICS = (*topics.INPUT_TOPICS, *topics.GROUND_TRUTH_TOPICS)
+SOURCES = ("predicted", "ground_truth")
+
+
+class EvaluationError(ValueError):
+    """The evaluation cannot start (no bags, unknown source...)."""
+
+
+@dataclass
+class Frame:
+    """One stereo frame of a bag with its ground truth, as numpy arrays (see DESIGN.md)."""
+
+    stamp_ns: int
+    topology: str
+    camera: StereoCamera
+    left_image: np.ndarray
+    right_image: np.ndarray
+    tip_hint: np.ndarray | None
+    true_left_mask: np.ndarray
+    true_right_mask: np.ndarray
+    true_left_sequence: np.ndarray
+    true_right_sequence: np.ndarray
+    true_path: np.ndarray
+    true_grasp: np.ndarray
+
+
+def find_bags(paths: Iterable[str | Path]) -> list[Path]:
+    """Bag directories (with metadata.yaml) or .mcap files named by, or found under, ``paths``."""
+    bags: list[Path] = []
+    for path in map(Path, paths):
+        if not path.exists():
+            raise EvaluationError(f"{path} does not exist")
+        if path.is_file() or (path / "metadata.yaml").exists():
+            bags.append(path)
+            continue
+        found = sorted({p.parent for p in path.rglob("metadata.yaml")})
+        found += sorted(p for p in path.rglob("*.mcap") if not (p.parent / "metadata.yaml").exists())
+        if not found:
+            raise EvaluationError(f"no bags (metadata.yaml or .mcap) under {path}")
+        bags.extend(found)
+    return bags
+
+
+def read_frames(bag: Path) -> Iterator[Frame]:
+    """Frames of one bag in stamp order; frames missing a topic are skipped."""
+    pending: dict[int, dict[str, Any]] = defaultdict(dict)
+    for record in read_messages(bag, FRAME_TOPICS):
+        pending[record.timestamp_ns][record.topic] = record.message
+    for stamp in sorted(pending):
+        got = pending.pop(stamp)
+        if not all(t in got for t in FRAME_TOPICS if t != topics.TIP_HINT):
+            continue
+        yield Frame(
+            stamp_ns=stamp,
+            topology=got[topics.GT_TOPOLOGY].data,
+            camera=StereoCamera.from_camera_info(got[topics.LEFT_CAMERA_INFO], got[topics.RIGHT_CAMERA_INFO]),
+            left_image=messages.image_to_array(got[topics.LEFT_IMAGE]),
+            right_image=messages.image_to_array(got[topics.RIGHT_IMAGE]),
+            tip_hint=messages.point_to_array(got[topics.TIP_HINT])[:2] if topics.TIP_HINT in got else None,
+            true_left_mask=messages.image_to_array(got[topics.GT_LEFT_MASK], expect="mono8") > 0,
+            true_right_mask=messages.image_to_array(got[topics.GT_RIGHT_MASK], expect="mono8") > 0,
+            true_left_sequence=messages.polygon_to_array(got[topics.GT_LEFT_SEQUENCE]),
+            true_right_sequence=messages.polygon_to_array(got[topics.GT_RIGHT_SEQUENCE]),
+            true_path=messages.path_to_array(got[topics.GT_PATH]),
+            true_grasp=messages.pose_to_arrays(got[topics.GT_GRASP_POSE])[0],
+        )
+
+
+@dataclass
+class _Tally:
+    """Running sums and per-frame records over the whole evaluation."""
+
+    frames: int = 0
+    pixels: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))  # tp, fp, fn
+    ordering: dict[str, list[bool]] = field(default_factory=lambda: defaultdict(list))
+    recon_mean: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    recon_max: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    grasp: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    latency: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    failures: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    notes: list[str] = field(default_factory=list)
+    per_frame: list[dict[str, Any]] = field(default_factory=list)
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
+
+
+def evaluate(paths: Iterable[str | Path], masks: str = "predicted", sequences: str = "predicted") -> dict:
+    """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict)."""
+    if masks not in SOURCES or sequences not in SOURCES:
+        raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
+    stages = _Stages(masks, sequences)
+    tally = _Tally()
+    for bag in find_bags(paths):
+        try:
+            for frame in read_frames(bag):
+                _evaluate_frame(frame, stages, tally)
+        except BagError as error:
+            raise EvaluationError(str(error)) from error
+    for reason in stages.missing:
+        tally.note(reason)
+    return _summary(tally, masks, sequences)
+
+
+class _Stages:
+    """The stage entry points the sources need, imported on demand (a stage may not exist yet).
+
+    Entry points: ``suture_segmentation.core.segment_stereo(left_image, right_image) -> (left_mask,
+    right_mask)``, ``suture_ordering.core.order_stereo(left_mask, right_mask, tip_hint, camera)``
+    (``.left``/``.right`` (N, 2) sequences) and ``suture_reconstruction.core.reconstruct(left,
+    right, camera)`` (``.path``, ``.grasp_position``).
+    """
+
+    def __init__(self, masks: str, sequences: str) -> None:
+        self.missing: list[str] = []
+        self.segment = self._load(
+            "suture_segmentation.core", "segment_stereo", masks == "predicted", "segmentation (issue 3)"
+        )
+        self.order = self._load(
+            "suture_ordering.core", "order_stereo", sequences == "predicted", "ordering (issue 4)"
+        )
+        self.reconstruct = self._load(
+            "suture_reconstruction.core", "reconstruct", True, "reconstruction (issue 5)"
+        )
+        self.masks, self.sequences = masks, sequences
+
+    def _load(self, module: str, name: str, needed: bool, label: str) -> Any:
+        if not needed:
+            return None
+        try:
+            return getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError):
+            self.missing.append(
+                f"{label}: stage not built yet ({module}.{name} missing); its figures are null"
+            )
+            return None
+
+
+def _evaluate_frame(frame: Frame, stages: _Stages, tally: _Tally) -> None:
+    from suture_bench.ordering_metrics import ordering_success
+    from suture_bench.reconstruction_metrics import score_reconstruction
+
+    tally.frames += 1
+    record: dict[str, Any] = {"stamp_ns": frame.stamp_ns, "topology": frame.topology}
+    tally.per_frame.append(record)
+    total = 0.0
+
+    masks: tuple[np.ndarray, np.ndarray] | None = (frame.true_left_mask, frame.true_right_mask)
+    if stages.masks == "predicted":
+        masks = None
+        if stages.segment is not None:
+            start = time.perf_counter()
+            masks = stages.segment(frame.left_image, frame.right_image)
+            total += _lap(tally, "segmentation", start)
+            for predicted, truth in zip(masks, (frame.true_left_mask, frame.true_right_mask), strict=True):
+                predicted = np.asarray(predicted) > 0
+                tally.pixels += [
+                    np.sum(predicted & truth),
+                    np.sum(predicted & ~truth),
+                    np.sum(~predicted & truth),
+                ]
+
+    sequences: tuple[np.ndarray, np.ndarray] | None = (
+        frame.true_left_sequence[:, :2],
+        frame.true_right_sequence[:, :2],
+    )
+    if stages.sequences == "predicted":
+        sequences = None
+        if stages.order is not None and masks is not None:
+            start = time.perf_counter()
+            try:
+                ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera)
+            except ValueError as error:
+                tally.failures[f"ordering: {type(error).__name__}"] += 1
+                record["ordering_error"] = str(error)
+                ordering = None
+            total += _lap(tally, "ordering", start)
+            success = (
+                ordering is not None and ordering_success(ordering.left, frame.true_left_sequence).success
+            )
+            tally.ordering[frame.topology].append(bool(success))
+            record["ordering_success"] = bool(success)
+            if ordering is not None:
+                sequences = (ordering.left, ordering.right)
+
+    if sequences is None or stages.reconstruct is None:
+        return
+    start = time.perf_counter()
+    try:
+        result = stages.reconstruct(sequences[0], sequences[1], frame.camera)
+    except ValueError as error:
+        _lap(tally, "reconstruction", start)
+        tally.failures[f"reconstruction: {type(error).__name__}"] += 1
+        record["reconstruction_error"] = str(error)
+        return
+    total += _lap(tally, "reconstruction", start)
+    tally.latency["total"].append(total)
+    score = score_reconstruction(result.path, frame.true_path, result.grasp_position, frame.true_grasp)
+    tally.recon_mean[frame.topology].append(score.mean_error_m)
+    tally.recon_max[frame.topology].append(score.max_error_m)
+    tally.grasp[frame.topology].append(score.grasp_error_m)
+    record.update(
+        mean_error_mm=1000 * score.mean_error_m,
+        max_error_mm=1000 * score.max_error_m,
+        grasp_error_mm=1000 * score.grasp_error_m,
+        grasp_position=np.asarray(result.grasp_position).tolist(),
+    )
+
+
+def _lap(tally: _Tally, stage: str, start: float) -> float:
+    elapsed = 1000 * (time.perf_counter() - start)
+    tally.latency[stage].append(elapsed)
+    return elapsed
+
+
+def _mean(values: Iterable[float], scale: float = 1.0) -> float | None:
+    values = list(values)
+    return float(np.mean(values)) * scale if values else None
+
+
+def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
+    tp, fp, fn = (int(v) for v in tally.pixels)
+    segmentation: dict[str, float | None] = {"iou": None, "precision": None, "recall": None, "f1": None}
+    if tp + fp + fn > 0:
+        precision = tp / (tp + fp) if tp + fp else 0.0
+        recall = tp / (tp + fn) if tp + fn else 0.0
+        segmentation = {
+            "iou": tp / (tp + fp + fn),
+            "precision": precision,
+            "recall": recall,
+            "f1": 2 * precision * recall / (precision + recall) if precision + recall else 0.0,
+        }
+    elif masks == "ground_truth":
+        tally.note("segmentation: not run (--masks ground_truth)")
+    all_ordering = [ok for values in tally.ordering.values() for ok in values]
+    if sequences == "ground_truth":
+        tally.note("ordering: not run (--sequences ground_truth)")
+    all_means = [v for values in tally.recon_mean.values() for v in values]
+    all_max = [v for values in tally.recon_max.values() for v in values]
+    all_grasp = [v for values in tally.grasp.values() for v in values]
+    for failure, count in sorted(tally.failures.items()):
+        tally.note(f"{failure} in {count} frame(s): counted as failures, excluded from error figures")
+    return {
+        "frames": tally.frames,
+        "masks": masks,
+        "sequences": sequences,
+        "segmentation": segmentation,
+        "ordering": {
+            "success_rate": _mean(all_ordering),
+            "by_topology": {t: _mean(v) for t, v in sorted(tally.ordering.items())},
+        },
+        "reconstruction": {
+            "mean_error_mm": _mean(all_means, 1000),
+            "max_error_mm": float(np.max(all_max)) * 1000 if all_max else None,
+            "by_topology": {
+                t: {
+                    "mean_error_mm": _mean(tally.recon_mean[t], 1000),
+                    "max_error_mm": float(np.max(tally.recon_max[t])) * 1000,
+                    "grasp_median_error_mm": float(np.median(tally.grasp[t])) * 1000,
+                    "grasp_max_error_mm": float(np.max(tally.grasp[t])) * 1000,
+                    "frames": len(tally.recon_mean[t]),
+                }
+                for t in sorted(tally.recon_mean)
+            },
+        },
+        "grasp": {
+            "median_error_mm": float(np.median(all_grasp)) * 1000 if all_grasp else None,
+            "max_error_mm": float(np.max(all_grasp)) * 1000 if all_grasp else None,
+            "within_5mm": _mean(np.asarray(all_grasp) <= 0.005) if all_grasp else None,
+        },
+        "latency_ms": {
+            stage: (float(np.median(tally.latency[stage])) if tally.latency.get(stage) else None)
+            for stage in ("segmentation", "ordering", "reconstruction", "total")
+        },
+        "notes": tally.notes,
+        "per_frame": tally.per_frame,
+    }
