@@ -11,6 +11,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", ["config/executor.yaml", "config/hand_eye_example.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -21,6 +22,9 @@ setup(
     ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "executor_node = grasp_executor.executor_node:main",
+            "psm_sim_node = grasp_executor.psm_sim_node:main",
+        ],
     },
 )

@@ -1,1 +1,10 @@
-"""Grasp executor (not built yet, issue 6): safety checks, dry_run / dVRK / UR backends, executor_node."""
+"""Grasp executor: grasp poses in the camera frame -> safe robot motion (DESIGN.md, issue 6).
+
+ROS-free core: ``geometry`` (Pose, quaternion <-> rotation vector), ``handeye``
+(T_base_camera), ``planning`` (grasp plan), ``keypoints`` (key-point mode),
+``safety`` (SafetyGate, GuardedBackend: every check in one place), ``executor``
+(GraspExecutor: states, runs, faults), ``backends`` (dry_run, dvrk over a CRTK
+transport seam, ur over ur_rtde), ``psm_sim`` (kinematic PSM model).
+rclpy side: ``executor_node``, ``psm_sim_node`` and ``crtk_ros`` (the CRTK
+transport). docs/executor.md describes the node, its parameters and the robots.
+"""

@@ -1,0 +1,355 @@
+"""executor_node: grasp poses in, robot motion out, through :class:`grasp_executor.executor.GraspExecutor`.
+
+Subscribes ``/suture/grasp_pose`` (PoseStamped) and ``/suture/path`` (Path) in
+the camera frame; publishes ``/grasp_executor/target_pose`` (the commanded
+grasp pose in the robot base frame, with the stamp of the grasp pose it came
+from) and ``/grasp_executor/state`` (String: idle, planned, executing, done,
+refused: <reason>, fault: <reason>). Services (std_srvs/Trigger):
+``/grasp_executor/execute`` runs the grasp of the latest valid grasp pose,
+``/grasp_executor/visit_keypoints`` runs key-point mode on the latest path,
+``/grasp_executor/abort`` stops a running motion. The responses carry the
+final state text. Setting the parameter ``armed`` at run time arms or disarms
+(disarming aborts a running motion); every other parameter is read at start-up.
+
+Parameters, with defaults and units, are in :data:`DEFAULTS` and documented in
+``config/executor.yaml`` and ``docs/executor.md``. The node only converts
+messages and parameters; every decision is in the ROS-free core.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import String
+from std_srvs.srv import Trigger
+
+from grasp_executor.backends.base import Backend
+from grasp_executor.backends.dry_run import DryRunBackend
+from grasp_executor.backends.dvrk import DvrkBackend
+from grasp_executor.backends.ur import UrBackend, rtde_connector
+from grasp_executor.crtk_ros import CrtkRosTransport
+from grasp_executor.executor import IDLE, GraspExecutor, Listeners
+from grasp_executor.geometry import Pose
+from grasp_executor.handeye import HandEye, load_hand_eye
+from grasp_executor.keypoints import KeypointConfig, KeypointRecord, append_keypoint_csv
+from grasp_executor.planning import GraspConfig
+from grasp_executor.safety import SafetyGate, SafetyLimits
+from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
+from suture_common.ros import RELIABLE_QOS, to_rclpy
+from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
+
+NODE_NAME = "grasp_executor"
+TARGET_POSE = "/grasp_executor/target_pose"
+STATE = "/grasp_executor/state"
+EXECUTE = "/grasp_executor/execute"
+VISIT_KEYPOINTS = "/grasp_executor/visit_keypoints"
+ABORT = "/grasp_executor/abort"
+
+BACKENDS = ("dry_run", "dvrk", "ur")
+
+DEFAULTS: dict[str, Any] = {
+    "backend": "dry_run",
+    "armed": False,
+    "camera_frame": LEFT_FRAME,
+    "base_frame": "base",
+    "hand_eye.file": "",
+    "hand_eye.translation": [0.0, 0.0, 0.0],
+    "hand_eye.quaternion": [0.0, 0.0, 0.0, 1.0],
+    "tool_rotation": [0.0, 0.0, 0.0, 1.0],
+    "workspace.min": [-0.15, -0.15, 0.0],
+    "workspace.max": [0.15, 0.15, 0.3],
+    "max_step": 0.05,
+    "max_age": 1.0,
+    "approach_offset": 0.01,
+    "lift_distance": 0.01,
+    "jaw.open": 0.8,
+    "jaw.close": -0.1,
+    "jaw.min": -0.35,
+    "jaw.max": 1.4,
+    "motion_timeout": 10.0,
+    "position_tolerance": 0.002,
+    "dvrk.namespace": "/PSM1",
+    "dvrk.measured_timeout": 0.5,
+    "ur.host": "",
+    "ur.speed": 0.05,
+    "ur.acceleration": 0.2,
+    "ur.stop_deceleration": 2.0,
+    "keypoints.count": 10,
+    "keypoints.approach_offset": 0.01,
+    "keypoints.dwell": 1.0,
+    "keypoints.orientation_from_robot": True,
+    "keypoints.orientation": [1.0, 0.0, 0.0, 0.0],
+    "keypoints.log_file": "",
+}
+"""Every parameter and its default (SI units: metres, radians, seconds; quaternions x y z w)."""
+
+_RUNTIME_PARAMETERS = ("armed",)
+
+
+class ConfigError(ValueError):
+    """A parameter value is unusable; the node does not start."""
+
+
+class ExecutorNode(Node):
+    """Thin adapter between ROS and :class:`GraspExecutor`."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        for name, default in DEFAULTS.items():
+            numeric = not isinstance(default, (str, bool))
+            self.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=numeric))
+        self._state_pub = self.create_publisher(String, STATE, RELIABLE_QOS)
+        self._target_pub = self.create_publisher(PoseStamped, TARGET_POSE, RELIABLE_QOS)
+        self._keypoint_log = str(self._value("keypoints.log_file"))
+        try:
+            self.core = self._build_core()
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        self.create_subscription(PoseStamped, GRASP_POSE, self._on_grasp_pose, RELIABLE_QOS)
+        self.create_subscription(Path, PATH, self._on_path, RELIABLE_QOS)
+        runs = MutuallyExclusiveCallbackGroup()
+        self.create_service(Trigger, EXECUTE, self._on_execute, callback_group=runs)
+        self.create_service(Trigger, VISIT_KEYPOINTS, self._on_visit_keypoints, callback_group=runs)
+        self.create_service(Trigger, ABORT, self._on_abort, callback_group=MutuallyExclusiveCallbackGroup())
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._publish_state(IDLE)
+        armed = "ARMED" if self.core.gate.armed else "not armed"
+        self.get_logger().info(
+            f"{self.core.backend_name} backend, {armed}; hand-eye {self.core.hand_eye.camera_frame} -> "
+            f"{self.core.hand_eye.base_frame}; call {EXECUTE} to grasp"
+        )
+
+    # ------------------------------------------------------------------ configuration
+
+    def _build_core(self) -> GraspExecutor:
+        camera_frame = str(self._value("camera_frame"))
+        base_frame = str(self._value("base_frame"))
+        hand_eye_file = str(self._value("hand_eye.file"))
+        if hand_eye_file:
+            hand_eye = load_hand_eye(hand_eye_file, camera_frame, base_frame)
+            self.get_logger().info(
+                f"hand-eye transform from {hand_eye_file} (hand_eye.translation/quaternion ignored)"
+            )
+        else:
+            hand_eye = HandEye(
+                self._floats("hand_eye.translation", 3),
+                self._floats("hand_eye.quaternion", 4),
+                camera_frame,
+                base_frame,
+            )
+        limits = SafetyLimits(
+            workspace_min=tuple(self._floats("workspace.min", 3)),
+            workspace_max=tuple(self._floats("workspace.max", 3)),
+            max_step=self._float("max_step"),
+            max_age=self._float("max_age"),
+            jaw_min=self._float("jaw.min"),
+            jaw_max=self._float("jaw.max"),
+        )
+        gate = SafetyGate(limits, armed=bool(self._value("armed")))
+        grasp = GraspConfig(
+            approach_offset=self._float("approach_offset"),
+            lift_distance=self._float("lift_distance"),
+            jaw_open=self._float("jaw.open"),
+            jaw_close=self._float("jaw.close"),
+            tool_rotation=tuple(self._floats("tool_rotation", 4)),
+        )
+        keypoints = KeypointConfig(
+            count=self._float("keypoints.count"),
+            approach_offset=self._float("keypoints.approach_offset"),
+            dwell=self._float("keypoints.dwell"),
+            orientation_from_robot=bool(self._value("keypoints.orientation_from_robot")),
+            orientation=tuple(self._floats("keypoints.orientation", 4)),
+        )
+        listeners = Listeners(
+            state=self._publish_state,
+            target=self._publish_target,
+            keypoint=self._report_keypoint,
+            info=self.get_logger().info,
+        )
+        motion_timeout = self._float("motion_timeout")
+        backend = self._make_backend(hand_eye.base_frame)
+        try:
+            return GraspExecutor(
+                backend,
+                gate,
+                hand_eye,
+                grasp,
+                keypoints,
+                motion_timeout=motion_timeout,
+                clock=lambda: self.get_clock().now().nanoseconds,
+                listeners=listeners,
+            )
+        except ValueError:
+            backend.close()
+            raise
+
+    def _make_backend(self, base_frame: str) -> Backend:
+        kind = str(self._value("backend"))
+        tolerance = self._float("position_tolerance")
+        if kind == "dry_run":
+            return DryRunBackend(log=self.get_logger().info)
+        if kind == "dvrk":
+            transport = CrtkRosTransport(self, str(self._value("dvrk.namespace")))
+            return DvrkBackend(
+                transport, measured_timeout=self._float("dvrk.measured_timeout"), position_tolerance=tolerance
+            )
+        if kind == "ur":
+            return UrBackend(
+                rtde_connector(str(self._value("ur.host"))),
+                frame_id=base_frame,
+                speed=self._float("ur.speed"),
+                acceleration=self._float("ur.acceleration"),
+                stop_deceleration=self._float("ur.stop_deceleration"),
+                position_tolerance=tolerance,
+            )
+        raise ConfigError(f"parameter backend is {kind!r}; use one of {', '.join(BACKENDS)}")
+
+    def _value(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def _float(self, name: str) -> float:
+        value = self._value(name)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"parameter {name} must be a number, got {value!r}")
+        return float(value)
+
+    def _floats(self, name: str, size: int) -> np.ndarray:
+        value = self._value(name)
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or len(value) != size:
+            raise ConfigError(f"parameter {name} must be a list of {size} numbers, got {value!r}")
+        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
+            raise ConfigError(f"parameter {name} must be a list of {size} numbers, got {value!r}")
+        return np.asarray(value, dtype=np.float64)
+
+    def _check_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        for parameter in parameters:
+            if parameter.name == "armed" and parameter.type_ != Parameter.Type.BOOL:
+                return SetParametersResult(successful=False, reason="armed must be true or false")
+            if parameter.name in DEFAULTS and parameter.name not in _RUNTIME_PARAMETERS:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{parameter.name} is read at start-up; restart the node to change it",
+                )
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters: list[Parameter]) -> None:
+        for parameter in parameters:
+            if parameter.name == "armed":
+                self.core.set_armed(bool(parameter.value))
+                if parameter.value:
+                    self.get_logger().warning("ARMED: the robot moves on the next execute request")
+                else:
+                    self.get_logger().info("disarmed")
+
+    # ------------------------------------------------------------------ inputs
+
+    def _on_grasp_pose(self, msg: PoseStamped) -> None:
+        try:
+            position, quaternion = pose_to_arrays(msg)
+            pose = Pose(position, quaternion, msg.header.frame_id)
+            self.core.on_grasp_pose(pose, ns_from_stamp(msg.header.stamp))
+        except ValueError as exc:
+            self.get_logger().warning(f"dropped {GRASP_POSE}: {exc}", throttle_duration_sec=5.0)
+
+    def _on_path(self, msg: Path) -> None:
+        try:
+            self.core.on_path(path_to_array(msg), msg.header.frame_id, ns_from_stamp(msg.header.stamp))
+        except ValueError as exc:
+            self.get_logger().warning(f"dropped {PATH}: {exc}", throttle_duration_sec=5.0)
+
+    # ------------------------------------------------------------------ services
+
+    def _on_execute(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        outcome = self.core.execute()
+        response.success, response.message = outcome.success, outcome.message
+        return response
+
+    def _on_visit_keypoints(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        outcome = self.core.visit_keypoints()
+        response.success, response.message = outcome.success, outcome.message
+        return response
+
+    def _on_abort(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        outcome = self.core.abort()
+        response.success, response.message = outcome.success, outcome.message
+        return response
+
+    # ------------------------------------------------------------------ outputs
+
+    def _publish_state(self, state: str) -> None:
+        self._state_pub.publish(String(data=state))
+        if state.startswith(("refused", "fault")):
+            self.get_logger().warning(f"state: {state}")
+        else:
+            self.get_logger().info(f"state: {state}")
+
+    def _publish_target(self, pose: Pose, stamp_ns: int) -> None:
+        message = pose_message(pose.position, pose.quaternion, stamp_ns, pose.frame_id)
+        self._target_pub.publish(to_rclpy(message))
+
+    def _report_keypoint(self, record: KeypointRecord) -> None:
+        self.get_logger().info(record.describe())
+        if self._keypoint_log:
+            try:
+                append_keypoint_csv(self._keypoint_log, record)
+            except OSError as exc:
+                self.get_logger().warning(
+                    f"cannot write {self._keypoint_log}: {exc.strerror or exc}", throttle_duration_sec=5.0
+                )
+
+    def close(self) -> None:
+        """Cancel a running motion and release the robot connection."""
+        self.core.close()
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(args: list[str] | None = None) -> None:
+    """``ros2 run grasp_executor executor_node``: spin until Ctrl-C (SIGINT) or SIGTERM.
+
+    rclpy's own signal handlers are off: they would shut ROS down at once, before
+    a running motion could be stopped. Here the interrupt ends the spin loop, the
+    node aborts the run, the backend tells the robot to stop (a dVRK through its
+    topics, which still work), and only then does ROS shut down.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
+    node = None
+    try:
+        executor = MultiThreadedExecutor(num_threads=4)
+        node = ExecutorNode()
+        executor.add_node(node)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ConfigError as exc:
+        print(f"executor_node: {exc}", file=sys.stderr)
+        sys.exit(1)
+    finally:
+        with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C skips the clean-up
+            if node is not None:
+                node.close()
+                node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
