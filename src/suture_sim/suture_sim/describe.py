@@ -1,8 +1,10 @@
-"""``suture-bag-info BAG``: what a simulated (or recorded) bag holds.
+"""``suture-bag-info BAG [--contact-sheet PNG]``: what a simulated (or recorded) bag holds.
 
 Prints each topic with its type and message count, then one line per frame
 with the ground truth a user checks first: topology, thread length, grasp
-point (camera frame, mm) and the tip hint.
+point (camera frame, mm) and the tip hint. ``--contact-sheet`` also writes one
+PNG with a row per frame: left image, right image and left ground-truth mask,
+at half size.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+import cv2
 import numpy as np
 
 from suture_common import messages, topics
@@ -55,13 +58,38 @@ def describe(path: str) -> str:
     return "\n".join(lines)
 
 
+def contact_sheet(path: str, output: str, scale: float = 0.5) -> int:
+    """Write the stereo pairs and left masks of the bag at ``path`` as one PNG; returns the row count."""
+    wanted = (topics.LEFT_IMAGE, topics.RIGHT_IMAGE, topics.GT_LEFT_MASK)
+    frames: dict[int, dict[str, np.ndarray]] = {}
+    for record in read_messages(path, wanted):
+        array = messages.image_to_array(record.message)
+        if array.ndim == 2:
+            array = np.repeat(array[..., None], 3, axis=2)
+        elif record.message.encoding == "rgb8":
+            array = array[..., ::-1]  # OpenCV writes BGR
+        frames.setdefault(record.timestamp_ns, {})[record.topic] = cv2.resize(
+            array, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA
+        )
+    rows = [np.hstack([f[t] for t in wanted]) for _, f in sorted(frames.items()) if len(f) == len(wanted)]
+    if not rows:
+        raise BagError(f"{path} has no frame with {', '.join(wanted)}")
+    if not cv2.imwrite(output, np.vstack(rows)):
+        raise OSError(f"could not write {output}")
+    return len(rows)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="suture-bag-info", description=__doc__.split("\n\n")[0])
     parser.add_argument("bag", help="bag directory or .mcap file")
+    parser.add_argument("--contact-sheet", metavar="PNG", help="also write the frames as one PNG here")
     args = parser.parse_args(argv)
     try:
         print(describe(args.bag))
-    except (BagError, messages.MessageConversionError) as error:
+        if args.contact_sheet:
+            rows = contact_sheet(args.bag, args.contact_sheet)
+            print(f"contact sheet: {rows} frames (left, right, left mask) in {args.contact_sheet}")
+    except (OSError, messages.MessageConversionError) as error:
         print(f"suture-bag-info: error: {error}", file=sys.stderr)
         return 1
     return 0
