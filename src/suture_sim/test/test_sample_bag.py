@@ -72,3 +72,17 @@ def test_the_recorded_command_regenerates_the_bag():
     image = messages.image_to_array(records[topics.LEFT_IMAGE]).astype(int)
     assert np.abs(image - frame.left_image.astype(int)).mean() < 0.5
     assert records[topics.GT_TOPOLOGY].data == frame.topology
+
+
+def test_bag_info_lists_frames_and_writes_a_contact_sheet(tmp_path):
+    from suture_sim.describe import contact_sheet, describe
+
+    text = describe(str(SAMPLE))
+    for topology in TOPOLOGIES:
+        assert text.count(f"  {topology} ") == 2, topology
+    assert "/ground_truth/grasp_pose" in text
+    rows = contact_sheet(str(SAMPLE), str(tmp_path / "sheet.png"))
+    import cv2
+
+    sheet = cv2.imread(str(tmp_path / "sheet.png"))
+    assert rows == FRAMES and sheet.shape == (FRAMES * 240, 3 * 320, 3)
