@@ -113,6 +113,8 @@ class _Tally:
     recon_mean: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     recon_max: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     grasp: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    length_error: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
+    keypoints: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     latency: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     failures: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     notes: list[str] = field(default_factory=list)
@@ -234,15 +236,12 @@ def _evaluate_frame(frame: Frame, stages: _Stages, tally: _Tally) -> None:
     total += _lap(tally, "reconstruction", start)
     tally.latency["total"].append(total)
     score = score_reconstruction(result.path, frame.true_path, result.grasp_position, frame.true_grasp)
-    tally.recon_mean[frame.topology].append(score.mean_error_m)
-    tally.recon_max[frame.topology].append(score.max_error_m)
-    tally.grasp[frame.topology].append(score.grasp_error_m)
-    record.update(
-        mean_error_mm=1000 * score.mean_error_m,
-        max_error_mm=1000 * score.max_error_m,
-        grasp_error_mm=1000 * score.grasp_error_m,
-        grasp_position=np.asarray(result.grasp_position).tolist(),
-    )
+    tally.recon_mean[frame.topology].append(score.mean_error)
+    tally.recon_max[frame.topology].append(score.max_error)
+    tally.length_error[frame.topology].append(abs(score.length_error))
+    tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
+    tally.grasp[frame.topology].append(score.grasp_error)
+    record.update(score.as_mm(), grasp_position=np.asarray(result.grasp_position).tolist())
 
 
 def _lap(tally: _Tally, stage: str, start: float) -> float:
@@ -296,6 +295,8 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
                     "max_error_mm": float(np.max(tally.recon_max[t])) * 1000,
                     "grasp_median_error_mm": float(np.median(tally.grasp[t])) * 1000,
                     "grasp_max_error_mm": float(np.max(tally.grasp[t])) * 1000,
+                    "length_error_mm": _mean(tally.length_error[t], 1000),
+                    "keypoint_error_mm": _mean(tally.keypoints[t], 1000),
                     "frames": len(tally.recon_mean[t]),
                 }
                 for t in sorted(tally.recon_mean)
