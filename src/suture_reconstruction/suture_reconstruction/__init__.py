@@ -1,4 +1,31 @@
-"""Reconstruction stage (not built yet, issue 5).
+"""Reconstruction stage: stereo pairing, triangulation, shape graph optimiser (Algorithm 1), grasp pose.
 
-Stereo pairing, triangulation, shape optimiser, grasp pose.
+The ROS-free entry point is :func:`reconstruct`; ``reconstruction_node`` is its
+rclpy adapter (the only module here that imports rclpy).
 """
+
+from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
+from suture_reconstruction.errors import (
+    InvalidSequenceError,
+    NoStereoOverlapError,
+    ReconstructionError,
+    ThreadTooShortError,
+    TooFewPointsError,
+)
+from suture_reconstruction.pairing import DisparitySmoothing, PairingParams, SelectionCosts
+from suture_reconstruction.shape_graph import ShapeGraphParams
+
+__all__ = [
+    "DisparitySmoothing",
+    "InvalidSequenceError",
+    "NoStereoOverlapError",
+    "PairingParams",
+    "Reconstruction",
+    "ReconstructionError",
+    "ReconstructionParams",
+    "SelectionCosts",
+    "ShapeGraphParams",
+    "ThreadTooShortError",
+    "TooFewPointsError",
+    "reconstruct",
+]

@@ -1,0 +1,59 @@
+"""Pairing of left and right inputs by exact ``header.stamp`` (DESIGN.md), without rclpy.
+
+The one stamp synchroniser of the project (what message_filters gives on a full install);
+every node that joins a stereo pair uses it.
+
+:class:`StampPairBuffer` keeps the latest unmatched items of each side keyed by
+their stamp (integer nanoseconds). When the item of the other side with the same
+stamp arrives, the pair is returned and removed. Each side keeps at most
+``capacity`` unmatched stamps; the earliest received are dropped first (and counted), so a
+side whose partner never arrives cannot grow the buffer.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+SIDES = ("left", "right")
+
+
+class StampPairBuffer(Generic[T]):
+    """Stamp-keyed pairing of two input streams ('left' and 'right')."""
+
+    def __init__(self, capacity: int = 30) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be at least 1, got {capacity}")
+        self.capacity = capacity
+        self._pending: dict[str, OrderedDict[int, T]] = {side: OrderedDict() for side in SIDES}
+        self.dropped = 0
+        """Unmatched items discarded because a side exceeded ``capacity``."""
+
+    def add(self, side: str, stamp_ns: int, item: T) -> tuple[T, T] | None:
+        """Add ``item`` of ``side`` at ``stamp_ns``; return (left, right) when its partner is waiting.
+
+        A second item of the same side and stamp replaces the first.
+        """
+        if side not in SIDES:
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        other = "right" if side == "left" else "left"
+        partner = self._pending[other].pop(stamp_ns, None)
+        if partner is not None:
+            return (item, partner) if side == "left" else (partner, item)
+        pending = self._pending[side]
+        pending.pop(stamp_ns, None)
+        pending[stamp_ns] = item
+        while len(pending) > self.capacity:
+            pending.popitem(last=False)
+            self.dropped += 1
+        return None
+
+    def pending(self, side: str) -> list[int]:
+        """Stamps of ``side`` still waiting for a partner, oldest first."""
+        return list(self._pending[side])
+
+    def clear(self) -> None:
+        for pending in self._pending.values():
+            pending.clear()

@@ -1,0 +1,272 @@
+"""The reconstruction stage's one entry point: two ordered sequences and a camera in, 3D thread and grasp out.
+
+:func:`reconstruct` is what ``reconstruction_node`` and the offline evaluator
+both call. Steps (paper Section II.B end and II.C):
+
+1. validate the sequences ((N, 2) pixels from the cut tip, finite, at least
+   ``min_points``); smooth each lightly (Savitzky-Golay, ``smoothing_window``
+   samples) and resample it every 1 px of its own arc length; a step longer
+   than ``max_jump_px`` is a jump over a hidden stretch, not observed thread;
+2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
+   the disparity limits of the working depth range, and disparity
+   regularisation along the thread (:mod:`suture_reconstruction.pairing`);
+3. triangulation of every left sample with a supported disparity
+   (``StereoCamera.triangulate``): the dense vertices ``points``;
+4. resampling of the vertices every ``vertex_step`` along each unbroken run and
+   Algorithm 1 (:mod:`suture_reconstruction.shape_graph`);
+5. a smoothing spline through the path's vertices, re-parametrised by arc
+   length (:mod:`suture_reconstruction.curve`): ``path`` every ``path_step``
+   and ``length``;
+6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``).
+
+Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
+(InvalidSequenceError, TooFewPointsError, NoStereoOverlapError,
+ThreadTooShortError) and ``suture_common.camera.CameraModelError`` for an
+unusable camera.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from suture_common.camera import CameraModelError, StereoCamera
+from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
+from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.pairing import (
+    DisparitySmoothing,
+    PairingParams,
+    SelectionCosts,
+    pair_sequences,
+    regularise_disparity,
+)
+from suture_reconstruction.sequences import as_sequence, resample, smooth_sequence
+from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
+
+
+@dataclass(frozen=True)
+class ReconstructionParams:
+    """Every tunable of :func:`reconstruct`; SI units unless the name says px.
+
+    Sequences: ``min_points`` (fewer points in a view: TooFewPointsError),
+    ``smoothing_window`` (Savitzky-Golay samples), ``max_jump_px`` (a longer step
+    is a jump over a hidden stretch). Pairing: ``pairing``
+    (:class:`~suture_reconstruction.pairing.PairingParams`: depth range, angles,
+    bands, end pairs), ``disparity_bandwidth_px`` (smoothing length of the
+    disparity along the thread where the pairs are well conditioned),
+    ``max_disparity_gap_px`` (extrapolation beyond the first/last pair),
+    ``min_pairs`` (fewer pairs: NoStereoOverlapError). Shape: ``vertex_step`` (m
+    between the vertices given to Algorithm 1, which fixes the unit of its index
+    difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
+    Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
+    ``grasp_arc_length`` (m from the cut tip).
+
+    :meth:`replace` takes flat names for the nested parameters too.
+    """
+
+    min_points: int = 8
+    smoothing_window: int = 9
+    max_jump_px: float = 4.0
+    pairing: PairingParams = field(default_factory=PairingParams)
+    disparity: DisparitySmoothing = field(default_factory=DisparitySmoothing)
+    min_pairs: int = 8
+    vertex_step: float = 0.0001
+    shape: ShapeGraphParams = field(default_factory=ShapeGraphParams)
+    curve_smoothing: float = 0.001
+    path_step: float = 0.0005
+    grasp_arc_length: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.min_points < 3 or self.min_pairs < 3:
+            raise ValueError("min_points and min_pairs must be at least 3")
+        for name in ("max_jump_px", "vertex_step", "path_step"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive, got {value}")
+        if not (self.curve_smoothing >= 0 and self.grasp_arc_length >= 0):
+            raise ValueError("curve_smoothing and grasp_arc_length must not be negative")
+
+    def replace(self, **changes: object) -> ReconstructionParams:
+        """A copy with ``changes`` applied; names of PairingParams, SelectionCosts and
+        ShapeGraphParams fields go to the nested parameters. Unknown names raise TypeError."""
+        nested = {"pairing": PairingParams, "shape": ShapeGraphParams, "disparity": DisparitySmoothing}
+        own_names = {f.name for f in fields(self)}
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        grouped: dict[str, dict[str, object]] = {"pairing": {}, "shape": {}, "selection": {}, "disparity": {}}
+        for name, value in changes.items():
+            if name in own_names:
+                values[name] = value
+            elif name in {f.name for f in fields(PairingParams)}:
+                grouped["pairing"][name] = value
+            elif name in {f.name for f in fields(SelectionCosts)}:
+                grouped["selection"][name] = value
+            elif name in {f.name for f in fields(ShapeGraphParams)}:
+                grouped["shape"][name] = value
+            elif name in {f.name for f in fields(DisparitySmoothing)}:
+                grouped["disparity"][name] = value
+            else:
+                raise TypeError(f"unknown reconstruction parameter {name!r}")
+        if grouped["selection"]:
+            selection = values["pairing"].selection
+            grouped["pairing"]["selection"] = dataclasses.replace(selection, **grouped["selection"])
+        for key, cls in nested.items():
+            if grouped[key]:
+                values[key] = dataclasses.replace(values[key], **grouped[key])
+                assert isinstance(values[key], cls)
+        return ReconstructionParams(**values)
+
+
+@dataclass(frozen=True)
+class Reconstruction:
+    """The 3D thread of one stereo pair, in the left camera optical frame (metres).
+
+    ``points`` (K, 3): dense triangulated vertices, one per paired left sample,
+    in sequence order from the cut tip. ``path`` (P, 3): the optimised smooth
+    centreline from the cut tip, every ``path_step`` of arc length (last point
+    at the end). ``length``: its arc length (m). ``grasp_position`` (3,) and
+    ``grasp_quaternion`` (4,) x y z w: the grasp pose (``suture_common.grasp``).
+    ``left_uv`` (K, 2): the left pixels of ``points``; ``disparity`` (K,) px.
+    ``shape``: Algorithm 1's result (``tau_l`` used, path vertex indices into
+    ``vertices`` (V, 3), the resampled input). ``rejected``: counts of left
+    samples without a vertex, by reason. ``timings_ms``: per step.
+    """
+
+    points: np.ndarray
+    path: np.ndarray
+    length: float
+    grasp_position: np.ndarray
+    grasp_quaternion: np.ndarray
+    left_uv: np.ndarray
+    disparity: np.ndarray
+    vertices: np.ndarray
+    shape: ShapePath
+    curve: ArcLengthCurve
+    rejected: dict[str, int]
+    timings_ms: dict[str, float]
+
+    @property
+    def tau_l(self) -> float:
+        """tau_L (m) at which Algorithm 1 found its path."""
+        return self.shape.tau_l
+
+
+def reconstruct(
+    left_sequence: np.ndarray,
+    right_sequence: np.ndarray,
+    camera: StereoCamera,
+    params: ReconstructionParams | None = None,
+) -> Reconstruction:
+    """Reconstruct the thread from its ordered left (N, 2) and right (M, 2) sequences (pixels u, v).
+
+    See the module docstring for the steps and errors.
+    """
+    params = params or ReconstructionParams()
+    if not isinstance(camera, StereoCamera):
+        raise CameraModelError(f"camera must be a StereoCamera, got {type(camera).__name__}")
+    clock = time.perf_counter()
+    left_raw = as_sequence(left_sequence, "left", params.min_points)
+    right_raw = as_sequence(right_sequence, "right", params.min_points)
+
+    left = resample(smooth_sequence(left_raw, params.smoothing_window), 1.0, params.max_jump_px)
+    right = resample(smooth_sequence(right_raw, params.smoothing_window), 1.0, params.max_jump_px)
+    n_left = len(left.points)
+
+    # --- pairing
+    d_range = (camera.disparity(params.pairing.max_depth), camera.disparity(params.pairing.min_depth))
+    pairs = pair_sequences(left.points, left.observed, right.points, right.observed, d_range, params.pairing)
+    rejected = dict(pairs.rejected)
+    if pairs.rows.size < params.min_pairs:
+        raise NoStereoOverlapError(
+            f"only {pairs.rows.size} of {n_left} left samples pair with the right sequence on their epipolar "
+            f"row within the disparity limits {d_range[0]:.1f}-{d_range[1]:.1f} px "
+            f"({params.pairing.min_depth * 1000:.0f}-{params.pairing.max_depth * 1000:.0f} mm); at least "
+            f"{params.min_pairs} are needed (are both sequences of the same thread and stereo pair, and is "
+            "camera_info the rectified pair?)"
+        )
+    disparity = regularise_disparity(n_left, pairs.rows, pairs.disparity, pairs.weight, params.disparity)
+    rejected["outlier"] = int((~disparity.inlier).sum())
+    t_pairing = time.perf_counter()
+
+    # --- triangulation
+    with np.errstate(invalid="ignore"):
+        valid = (
+            left.observed
+            & disparity.supported
+            & (disparity.value >= d_range[0])
+            & (disparity.value <= d_range[1])
+        )
+    rejected["unsupported"] = int((left.observed & ~valid).sum())
+    index = np.flatnonzero(valid)
+    if index.size < params.min_pairs:
+        raise NoStereoOverlapError(
+            f"only {index.size} left samples have a disparity within the limits after regularisation"
+        )
+    left_uv = left.points[index]
+    d = disparity.value[index]
+    points = camera.triangulate(left_uv, left_uv[:, 0] - d)
+    t_triangulation = time.perf_counter()
+
+    # --- Algorithm 1
+    vertices = _resample_runs(points, index, params.vertex_step)
+    if len(vertices) < 2:
+        raise TooFewPointsError(f"only {len(vertices)} 3D vertex after resampling; the thread is too short")
+    try:
+        shape = optimise_shape(vertices, params.shape)
+    except TooFewPointsError:
+        raise
+    except ValueError as exc:
+        raise ReconstructionError(str(exc)) from None
+    t_shape = time.perf_counter()
+
+    # --- curve and grasp
+    curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
+    path = curve.resample(params.path_step)
+    grasp = grasp_pose(curve, params.grasp_arc_length)
+    t_grasp = time.perf_counter()
+
+    timings = {
+        "pairing": 1000 * (t_pairing - clock),
+        "triangulation": 1000 * (t_triangulation - t_pairing),
+        "optimisation": 1000 * (t_shape - t_triangulation),
+        "curve_and_grasp": 1000 * (t_grasp - t_shape),
+    }
+    timings["total"] = sum(timings.values())
+    return Reconstruction(
+        points=points,
+        path=path,
+        length=curve.length,
+        grasp_position=grasp.position,
+        grasp_quaternion=grasp.quaternion,
+        left_uv=left_uv,
+        disparity=d,
+        vertices=vertices,
+        shape=shape,
+        curve=curve,
+        rejected=rejected,
+        timings_ms=timings,
+    )
+
+
+def _resample_runs(points: np.ndarray, index: np.ndarray, step: float) -> np.ndarray:
+    """Resample (K, 3) ``points`` every ``step`` m within each run of consecutive ``index`` values.
+
+    A break in ``index`` (samples without a vertex between) is a gap that is not
+    filled: Algorithm 1 bridges it by growing tau_L. A run's last point is kept.
+    """
+    breaks = np.flatnonzero(np.diff(index) > 1) + 1
+    runs = np.split(np.arange(len(points)), breaks)
+    out = []
+    for run in runs:
+        chain = points[run]
+        seg = np.linalg.norm(np.diff(chain, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(seg)])
+        s = np.arange(0.0, arc[-1], step) if arc[-1] > 0 else np.zeros(1)
+        if arc[-1] - s[-1] > 0.25 * step:
+            s = np.append(s, arc[-1])
+        else:
+            s[-1] = arc[-1] if s.size > 1 else s[-1]
+        out.append(np.column_stack([np.interp(s, arc, chain[:, k]) for k in range(3)]))
+    return np.concatenate(out)

@@ -1,0 +1,116 @@
+"""A smooth, arc-length parametrised 3D curve through the optimised vertices, and the grasp pose on it.
+
+The vertices of the shortest path (:mod:`suture_reconstruction.shape_graph`)
+are resampled by chord length, smoothed with a discrete cubic smoothing spline
+(the Whittaker smoother of :mod:`suture_reconstruction.smoothing`, whose
+penalty lam = (h / step)^4 makes it act like a kernel of half-width about h,
+the smoothing length) and interpolated by a C2 cubic spline; that curve is
+sampled densely and re-parametrised by arc length, which gives the thread's
+length and points and tangents at any arc length from the cut tip.
+
+Units: metres at the interface; millimetres inside the fit (for conditioning).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+
+from suture_common.grasp import (
+    DegenerateGraspFrameError,
+    grasp_rotation,
+    point_at_arc_length,
+    rotation_to_quaternion,
+)
+from suture_reconstruction.errors import ReconstructionError, ThreadTooShortError
+from suture_reconstruction.smoothing import whittaker
+
+_MM = 1000.0
+_DENSE_STEP_MM = 0.05
+
+
+@dataclass(frozen=True)
+class ArcLengthCurve:
+    """A 3D curve sampled densely by arc length from the cut tip.
+
+    ``samples`` (S, 3) metres, ``arc`` (S,) metres from the first sample (0 to ``length``).
+    """
+
+    samples: np.ndarray
+    arc: np.ndarray
+
+    @property
+    def length(self) -> float:
+        """Arc length of the curve (m)."""
+        return float(self.arc[-1])
+
+    def at(self, arc_length: np.ndarray | float) -> np.ndarray:
+        """Points (..., 3) at ``arc_length`` metres from the tip (clamped to the curve)."""
+        s = np.asarray(arc_length, dtype=np.float64)
+        return np.stack([np.interp(s, self.arc, self.samples[:, k]) for k in range(3)], axis=-1)
+
+    def resample(self, step: float) -> np.ndarray:
+        """(P, 3) points every ``step`` metres from the tip; the last one is the curve's end."""
+        s = np.arange(0.0, self.length, step)
+        if self.length - s[-1] > 1e-9:
+            s = np.append(s, self.length)
+        return self.at(s)
+
+
+def fit_curve(vertices: np.ndarray, smoothing: float, step: float = 2.5e-4) -> ArcLengthCurve:
+    """Smooth arc-length curve through (n, 3) ordered vertices (m); smoothing length ``smoothing`` (m).
+
+    The vertices are resampled every ``step`` m of chord length, smoothed with the
+    Whittaker smoother (lam = (smoothing / step)^4, a discrete cubic smoothing
+    spline), interpolated by a C2 cubic spline (``scipy.interpolate.make_interp_spline``)
+    and sampled every 0.05 mm. ``smoothing`` = 0 keeps the (resampled) polyline.
+    """
+    mm = np.asarray(vertices, dtype=np.float64) * _MM
+    seg = np.linalg.norm(np.diff(mm, axis=0), axis=1)
+    keep = np.concatenate([[True], seg > 1e-9])
+    mm = mm[keep]
+    chord = np.concatenate([[0.0], np.cumsum(seg[seg > 1e-9])])
+    step_mm = step * _MM
+    count = max(2, int(np.ceil(chord[-1] / step_mm)) + 1)
+    s = np.linspace(0.0, chord[-1], count)
+    points = np.column_stack([np.interp(s, chord, mm[:, k]) for k in range(3)])
+    if smoothing > 0 and count >= 5:
+        points = whittaker(points, np.ones(count), (smoothing * _MM / (s[1] - s[0])) ** 4)
+    if count >= 4:
+        dense_s = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / _DENSE_STEP_MM)) + 1))
+        dense = make_interp_spline(s, points, k=3)(dense_s)
+    else:
+        dense = points
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
+    return ArcLengthCurve(dense / _MM, arc / _MM)
+
+
+@dataclass(frozen=True)
+class GraspPose:
+    """Grasp pose on the curve: ``position`` (3,) m, ``quaternion`` (4,) x y z w, ``tangent`` (3,) unit."""
+
+    position: np.ndarray
+    quaternion: np.ndarray
+    tangent: np.ndarray
+
+
+def grasp_pose(curve: ArcLengthCurve, arc_length: float) -> GraspPose:
+    """The grasp pose ``arc_length`` metres from the cut tip, in the frame of :mod:`suture_common.grasp`.
+
+    Raises ThreadTooShortError when the curve is shorter than ``arc_length`` and
+    ReconstructionError when the thread points along the viewing ray there.
+    """
+    if curve.length < arc_length:
+        raise ThreadTooShortError(
+            f"reconstructed thread is {curve.length * 1000:.1f} mm long, shorter than the reserved "
+            f"{arc_length * 1000:.1f} mm from the cut tip: no grasp point (lower grasp_arc_length or "
+            "check that the whole thread is in view)"
+        )
+    position, tangent = point_at_arc_length(curve.samples, arc_length)
+    try:
+        rotation = grasp_rotation(position, tangent)
+    except DegenerateGraspFrameError as exc:
+        raise ReconstructionError(f"no grasp frame at {arc_length * 1000:.1f} mm: {exc}") from None
+    return GraspPose(position, rotation_to_quaternion(rotation), tangent)

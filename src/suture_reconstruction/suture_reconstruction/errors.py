@@ -1,0 +1,30 @@
+"""Exceptions of the reconstruction stage.
+
+Every problem with the inputs raises a subclass of :class:`ReconstructionError`
+(itself a ``ValueError``) whose text says what is wrong and what to do, so that
+the node can drop the frame with one log line. Camera problems (not rectified,
+zero baseline) raise :class:`suture_common.camera.CameraModelError` instead,
+which is also a ``ValueError``.
+"""
+
+from __future__ import annotations
+
+
+class ReconstructionError(ValueError):
+    """The stereo pair cannot be reconstructed; the text names the reason."""
+
+
+class InvalidSequenceError(ReconstructionError):
+    """A sequence is not an (N, 2) array of finite pixels (wrong shape, NaN or inf)."""
+
+
+class TooFewPointsError(ReconstructionError):
+    """A sequence, or what is left of it after pairing, has too few points to reconstruct."""
+
+
+class NoStereoOverlapError(ReconstructionError):
+    """The left and right sequences share too few epipolar rows within the disparity limits."""
+
+
+class ThreadTooShortError(ReconstructionError):
+    """The reconstructed thread is shorter than the reserved grasp arc length."""

@@ -1,0 +1,269 @@
+"""reconstruction_node: ordered sequences in, 3D thread and grasp pose out, through :func:`reconstruct`.
+
+Subscribes ``/suture/left/sequence`` and ``/suture/right/sequence``
+(geometry_msgs/PolygonStamped, reliable) and ``/stereo/{left,right}/camera_info``
+(sensor_msgs/CameraInfo, sensor-data QoS, which also hears reliable publishers).
+Sequences are paired by exact ``header.stamp`` (:class:`StampPairBuffer`) and
+reconstructed with the latest camera_info pair. Publishes, with the stamp of the
+stereo pair and frame ``frame_id`` (``left_camera_optical_frame``), reliable:
+
+* ``/suture/points`` (sensor_msgs/PointCloud2: fields x y z float32, the dense
+  triangulated vertices in sequence order);
+* ``/suture/path`` (nav_msgs/Path: the optimised centreline from the cut tip);
+* ``/suture/grasp_pose`` (geometry_msgs/PoseStamped: ``grasp_arc_length`` from
+  the tip; x along the thread, z the approach direction);
+* ``/suture/markers`` (visualization_msgs/MarkerArray: the path as LINE_STRIP
+  id 0, the grasp point as SPHERE id 1, namespace ``suture``).
+
+Parameters (read at start-up; SI units): see :data:`PARAMETERS`. A frame that
+cannot be reconstructed (too few points, no stereo overlap, thread shorter than
+the reserve, NaN, missing or unusable camera_info) is dropped with one warning
+per reason and ``log_throttle`` seconds, and the node serves the next one.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
+from std_msgs.msg import Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from suture_common.camera import CameraModelError, StereoCamera
+from suture_common.messages import (
+    MessageConversionError,
+    ns_from_stamp,
+    path_message,
+    polygon_to_array,
+    pose_message,
+)
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, to_rclpy
+from suture_common.stamp_buffer import StampPairBuffer
+from suture_common.topics import (
+    GRASP_POSE,
+    LEFT_CAMERA_INFO,
+    LEFT_FRAME,
+    LEFT_SEQUENCE,
+    MARKERS,
+    PATH,
+    POINTS,
+    RIGHT_CAMERA_INFO,
+    RIGHT_SEQUENCE,
+)
+from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
+from suture_reconstruction.errors import ReconstructionError
+
+NODE_NAME = "reconstruction_node"
+
+PARAMETERS: dict[str, tuple[Any, str]] = {
+    "grasp_arc_length": (0.05, "arc length (m) from the cut tip to the grasp point"),
+    "tau_l": (0.001, "Algorithm 1: initial edge length limit tau_L (m)"),
+    "tau_step": (0.0005, "Algorithm 1: growth step of tau_L (m; the paper's 0.5, read as 0.5 mm)"),
+    "upsilon3": (0.001, "Algorithm 1: radius Upsilon_3 (m) of the density sphere of Eq. 9"),
+    "sigma1": (10.0, "Algorithm 1: steepness sigma_1 (neighbour count) of Eq. 9"),
+    "nu1": (0.001, "Algorithm 1: nu_1 (m) of Eq. 9"),
+    "vertex_step": (0.0001, "spacing (m) of the vertices given to Algorithm 1 (unit of |i - t| in Eq. 11)"),
+    "min_depth": (0.045, "nearest depth (m) of a pair: the largest disparity accepted"),
+    "max_depth": (0.165, "farthest depth (m) of a pair: the smallest disparity accepted"),
+    "min_points": (8, "fewest points a sequence must have"),
+    "curve_smoothing": (0.001, "smoothing length (m) of the 3D curve"),
+    "path_step": (0.0005, "spacing (m) of the published path"),
+    "frame_id": (LEFT_FRAME, "frame of the outputs (the left camera optical frame)"),
+    "buffer_size": (30, "unmatched stamps kept per side while waiting for the other sequence"),
+    "log_throttle": (5.0, "seconds between two warnings for the same reason"),
+}
+"""Declared parameters: name -> (default, description)."""
+
+_CORE_PARAMETERS = (
+    "grasp_arc_length",
+    "tau_l",
+    "tau_step",
+    "upsilon3",
+    "sigma1",
+    "nu1",
+    "vertex_step",
+    "min_depth",
+    "max_depth",
+    "min_points",
+    "curve_smoothing",
+    "path_step",
+)
+
+
+class ReconstructionNode(Node):
+    """The rclpy adapter of :func:`suture_reconstruction.core.reconstruct` (module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        for name, (default, description) in PARAMETERS.items():
+            self.declare_parameter(name, default, ParameterDescriptor(description=description))
+        values = {name: self.get_parameter(name).value for name in _CORE_PARAMETERS}
+        self.params = ReconstructionParams().replace(**values)  # ValueError on bad values
+        self.frame_id = str(self.get_parameter("frame_id").value)
+        self._throttle = float(self.get_parameter("log_throttle").value)
+        self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(
+            int(self.get_parameter("buffer_size").value)
+        )
+        self._camera_info: dict[str, CameraInfo] = {}
+        self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
+        self._last_warning: dict[str, float] = {}
+        self.frames = 0
+        """Stereo pairs reconstructed and published."""
+        self.dropped: dict[str, int] = {}
+        """Stereo pairs dropped, by reason."""
+
+        self._points = self.create_publisher(PointCloud2, POINTS, RELIABLE_QOS)
+        self._path = self.create_publisher(Path, PATH, RELIABLE_QOS)
+        self._pose = self.create_publisher(PoseStamped, GRASP_POSE, RELIABLE_QOS)
+        self._markers = self.create_publisher(MarkerArray, MARKERS, RELIABLE_QOS)
+        self.create_subscription(
+            PolygonStamped, LEFT_SEQUENCE, lambda m: self._on_sequence("left", m), RELIABLE_QOS
+        )
+        self.create_subscription(
+            PolygonStamped, RIGHT_SEQUENCE, lambda m: self._on_sequence("right", m), RELIABLE_QOS
+        )
+        self.create_subscription(
+            CameraInfo, LEFT_CAMERA_INFO, lambda m: self._camera_info.__setitem__("left", m), SENSOR_DATA_QOS
+        )
+        self.create_subscription(
+            CameraInfo,
+            RIGHT_CAMERA_INFO,
+            lambda m: self._camera_info.__setitem__("right", m),
+            SENSOR_DATA_QOS,
+        )
+
+    # ------------------------------------------------------------------ callbacks
+
+    def _on_sequence(self, side: str, message: PolygonStamped) -> None:
+        stamp = ns_from_stamp(message.header.stamp)
+        try:
+            sequence = polygon_to_array(message)
+        except MessageConversionError as exc:
+            self._drop("bad_sequence", f"dropped {side} sequence at {stamp} ns: {exc}")
+            return
+        pair = self._buffer.add(side, stamp, sequence)
+        if pair is not None:
+            self.process(stamp, *pair)
+
+    def process(self, stamp_ns: int, left: np.ndarray, right: np.ndarray) -> Reconstruction | None:
+        """Reconstruct one stereo pair and publish it; returns None (and warns) when it is dropped."""
+        camera = self._stereo_camera()
+        if camera is None:
+            return None
+        try:
+            result = reconstruct(left, right, camera, self.params)
+        except ReconstructionError as exc:
+            self._drop(type(exc).__name__, f"dropped stereo pair at {stamp_ns} ns: {exc}")
+            return None
+        except ValueError as exc:  # anything else the core rejects (e.g. a degenerate grasp frame)
+            self._drop("invalid_input", f"dropped stereo pair at {stamp_ns} ns: {exc}")
+            return None
+        self._publish(stamp_ns, result)
+        self.frames += 1
+        return result
+
+    def _stereo_camera(self) -> StereoCamera | None:
+        left, right = self._camera_info.get("left"), self._camera_info.get("right")
+        if left is None or right is None:
+            missing = " and ".join(s for s, m in (("left", left), ("right", right)) if m is None)
+            self._drop("no_camera_info", f"dropped stereo pair: no {missing} camera_info received yet")
+            return None
+        key = (tuple(left.p), tuple(right.p), left.width, left.height, right.width, right.height)
+        if self._camera is None or self._camera[0] != key:
+            try:
+                self._camera = (key, StereoCamera.from_camera_info(left, right))
+            except CameraModelError as exc:
+                self._camera = None
+                self._drop("camera_info", f"dropped stereo pair: unusable camera_info: {exc}")
+                return None
+        return self._camera[1]
+
+    # ------------------------------------------------------------------ output
+
+    def _publish(self, stamp_ns: int, result: Reconstruction) -> None:
+        path = to_rclpy(path_message(result.path, stamp_ns, self.frame_id))
+        pose = to_rclpy(pose_message(result.grasp_position, result.grasp_quaternion, stamp_ns, self.frame_id))
+        self._points.publish(point_cloud(result.points, path.header))
+        self._path.publish(path)
+        self._pose.publish(pose)
+        self._markers.publish(markers(result.path, result.grasp_position, path.header))
+
+    def _drop(self, reason: str, text: str) -> None:
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
+        now = time.monotonic()
+        if now - self._last_warning.get(reason, -np.inf) >= self._throttle:
+            self._last_warning[reason] = now
+            self.get_logger().warning(text)
+
+
+def point_cloud(points: np.ndarray, header: Header) -> PointCloud2:
+    """sensor_msgs/PointCloud2 of (N, 3) points (m): fields x y z float32, little-endian, one row."""
+    data = np.ascontiguousarray(points, dtype="<f4").reshape(-1, 3)
+    return PointCloud2(
+        header=header,
+        height=1,
+        width=len(data),
+        fields=[
+            PointField(name=n, offset=4 * i, datatype=PointField.FLOAT32, count=1)
+            for i, n in enumerate("xyz")
+        ],
+        is_bigendian=False,
+        point_step=12,
+        row_step=12 * len(data),
+        data=data.tobytes(),
+        is_dense=True,
+    )
+
+
+def point_cloud_to_array(message: PointCloud2) -> np.ndarray:
+    """(N, 3) float64 of a cloud written by :func:`point_cloud` (for tests and tools)."""
+    return np.frombuffer(bytes(message.data), dtype="<f4").reshape(-1, 3).astype(np.float64)
+
+
+def markers(path: np.ndarray, grasp_position: np.ndarray, header: Header) -> MarkerArray:
+    """The path as a LINE_STRIP (id 0, 0.5 mm wide, green), the grasp point as a SPHERE (id 1, 3 mm, red)."""
+    line = Marker(header=header, ns="suture", id=0, type=Marker.LINE_STRIP, action=Marker.ADD)
+    line.pose.orientation.w = 1.0
+    line.scale.x = 0.0005
+    line.color.g, line.color.a = 1.0, 1.0
+    line.points = [Point(x=x, y=y, z=z) for x, y, z in np.asarray(path, dtype=float).tolist()]
+    sphere = Marker(header=header, ns="suture", id=1, type=Marker.SPHERE, action=Marker.ADD)
+    x, y, z = np.asarray(grasp_position, dtype=float).tolist()
+    sphere.pose.position = Point(x=x, y=y, z=z)
+    sphere.pose.orientation.w = 1.0
+    sphere.scale.x = sphere.scale.y = sphere.scale.z = 0.003
+    sphere.color.r, sphere.color.a = 1.0, 1.0
+    return MarkerArray(markers=[line, sphere])
+
+
+def main(args: list[str] | None = None) -> None:
+    """``ros2 run suture_reconstruction reconstruction_node``: spin until Ctrl-C or shutdown."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ReconstructionNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:  # bad parameters
+        print(f"{NODE_NAME}: {exc}", file=sys.stderr)
+        sys.exit(1)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

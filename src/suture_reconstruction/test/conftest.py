@@ -1,0 +1,136 @@
+"""Shared fixtures: synthetic stereo threads with exact ground truth, and the committed sample bag."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from suture_common import topics
+from suture_common.bag_io import read_messages
+from suture_common.camera import StereoCamera
+from suture_common.grasp import point_at_arc_length
+from suture_common.messages import path_to_array, polygon_to_array, pose_to_arrays
+
+SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
+
+
+@dataclass
+class Scene:
+    """A thread seen by a stereo camera: noisy, independently sampled (N, 2) sequences and the truth."""
+
+    camera: StereoCamera
+    left: np.ndarray
+    right: np.ndarray
+    path: np.ndarray
+    grasp: np.ndarray
+
+
+def view_sequence(
+    camera: StereoCamera, curve: np.ndarray, view: str, rng: np.random.Generator, noise: float
+) -> np.ndarray:
+    """The image sequence of a dense 3D ``curve`` in ``view``: every ~1 px from the tip, plus noise."""
+    uv = camera.project(curve, view)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    step = rng.uniform(0.95, 1.05)
+    s = np.concatenate([[0.0], np.arange(rng.uniform(0, step), arc[-1], step)])
+    sequence = np.column_stack([np.interp(s, arc, uv[:, 0]), np.interp(s, arc, uv[:, 1])])
+    return sequence + rng.normal(0.0, noise, sequence.shape)
+
+
+def planar_thread(kind: str, rng: np.random.Generator) -> np.ndarray:
+    """A dense (every 0.05 mm) 3D centreline (m) in the left optical frame, about 90 mm from the camera.
+
+    kinds: 'curved' (an S bend), 'loop' (crosses itself, the later strand lifted 1 mm over
+    the earlier one), 'rows' (a straight thread 1 degree off the image rows), 'short' (20 mm).
+    """
+    step = 5e-5
+    length = {"short": 0.02}.get(kind, 0.09)
+    s = np.arange(0.0, length, step)
+    if kind == "loop":
+        bump = np.exp(-0.5 * ((s - length / 2) / 0.012) ** 2)
+        curvature = bump * (2 * np.pi + 0.8) / (bump.sum() * step) + 8.0
+    elif kind in ("rows", "short"):
+        curvature = np.zeros_like(s)
+    else:
+        curvature = 40.0 * np.sin(2 * np.pi * s / length)
+    heading = np.cumsum(curvature) * step + (np.radians(1.0) if kind == "rows" else rng.uniform(0, 2 * np.pi))
+    xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * step, axis=0)
+    xy -= xy.mean(axis=0)
+    z = 0.09 + 0.15 * xy[:, 0] + 0.002 * np.sin(2 * np.pi * s / length)
+    if kind == "loop":
+        far = np.abs(np.arange(0, len(s), 20)[:, None] - np.arange(0, len(s), 20)[None, :]) > 100
+        sub = xy[::20]
+        gaps = np.linalg.norm(sub[:, None] - sub[None, :], axis=2)
+        i, j = np.unravel_index(np.argmin(np.where(far, gaps, np.inf)), gaps.shape)
+        later = max(i, j) * 20
+        z = z - 0.001 * np.exp(-0.5 * ((s - s[later]) / 0.003) ** 2)
+    return np.column_stack([xy, z])
+
+
+@pytest.fixture
+def make_scene() -> Callable[..., Scene]:
+    def make(
+        kind: str = "curved", seed: int = 0, noise: float = 0.3, width: int = 640, height: int = 480
+    ) -> Scene:
+        rng = np.random.default_rng(seed)
+        camera = StereoCamera.default(width, height)
+        curve = planar_thread(kind, rng)
+        grasp = point_at_arc_length(curve, 0.05)[0] if kind != "short" else curve[-1]
+        return Scene(
+            camera,
+            view_sequence(camera, curve, "left", rng, noise),
+            view_sequence(camera, curve, "right", rng, noise),
+            curve,
+            grasp,
+        )
+
+    return make
+
+
+@dataclass
+class SampleFrame:
+    """One frame of bags/sample: ground-truth sequences, camera_info messages and the true thread."""
+
+    stamp_ns: int
+    topology: str
+    left: np.ndarray
+    right: np.ndarray
+    left_info: object
+    right_info: object
+    path: np.ndarray
+    grasp: np.ndarray
+
+
+@pytest.fixture(scope="session")
+def sample_frames() -> list[SampleFrame]:
+    wanted = [
+        topics.GT_LEFT_SEQUENCE,
+        topics.GT_RIGHT_SEQUENCE,
+        topics.GT_PATH,
+        topics.GT_GRASP_POSE,
+        topics.GT_TOPOLOGY,
+        topics.LEFT_CAMERA_INFO,
+        topics.RIGHT_CAMERA_INFO,
+    ]
+    by_stamp: dict[int, dict[str, object]] = {}
+    for item in read_messages(SAMPLE_BAG, wanted):
+        by_stamp.setdefault(item.timestamp_ns, {})[item.topic] = item.message
+    frames = []
+    for stamp, m in sorted(by_stamp.items()):
+        frames.append(
+            SampleFrame(
+                stamp,
+                m[topics.GT_TOPOLOGY].data,
+                polygon_to_array(m[topics.GT_LEFT_SEQUENCE])[:, :2],
+                polygon_to_array(m[topics.GT_RIGHT_SEQUENCE])[:, :2],
+                m[topics.LEFT_CAMERA_INFO],
+                m[topics.RIGHT_CAMERA_INFO],
+                path_to_array(m[topics.GT_PATH]),
+                pose_to_arrays(m[topics.GT_GRASP_POSE])[0],
+            )
+        )
+    return frames
