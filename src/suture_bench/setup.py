@@ -22,6 +22,7 @@ setup(
         "console_scripts": [
             "suture-eval = suture_bench.cli:main",
             "suture-recon-bench = suture_bench.reconstruction_metrics:main",
+            "suture-order-bench = suture_bench.ordering_bench:main",
         ],
     },
 )

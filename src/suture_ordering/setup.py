@@ -19,6 +19,9 @@ setup(
     description=("Ordering stage: mask cleaning, centreline, cut tip, sequence search, ordering_node."),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "ordering_node = suture_ordering.ordering_node:main",
+            "suture-order-figures = suture_ordering.figures:main",
+        ],
     },
 )

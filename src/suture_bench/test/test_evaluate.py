@@ -1,0 +1,66 @@
+"""suture-eval follows DESIGN.md's evaluation contract on the sample bag."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from suture_bench.evaluate import evaluate
+
+SAMPLE = Path(__file__).resolve().parents[3] / "bags" / "sample"
+KEYS = {"frames", "masks", "segmentation", "ordering", "reconstruction", "grasp", "latency_ms", "notes"}
+
+
+def test_ground_truth_sequences_isolate_the_3d_stage():
+    summary = evaluate([SAMPLE], masks="ground_truth", sequences="ground_truth")
+    assert set(summary) >= KEYS
+    assert summary["frames"] == 10
+    assert summary["segmentation"] == {"iou": None, "precision": None, "recall": None, "f1": None}
+    assert summary["ordering"]["success_rate"] is None
+    assert any("segmentation" in note for note in summary["notes"])
+    assert any("ordering" in note for note in summary["notes"])
+    recon = summary["reconstruction"]
+    assert set(recon["by_topology"]) == {"straight", "curved", "self_intersected", "crossed", "occluded"}
+    assert recon["mean_error_mm"] < 1.0
+    assert summary["grasp"]["median_error_mm"] < 2.0
+    assert summary["latency_ms"]["reconstruction"] > 0 and summary["latency_ms"]["segmentation"] is None
+
+
+def test_predicted_masks_without_a_segmenter_say_why_figures_are_null():
+    summary = evaluate([SAMPLE], masks="predicted", sequences="predicted")
+    assert summary["frames"] == 10
+    assert summary["segmentation"]["iou"] is None
+    assert summary["grasp"]["median_error_mm"] is None
+    assert any("segmentation (issue 3)" in note for note in summary["notes"])
+
+
+def test_cli_writes_the_json_summary_and_fails_with_one_line(tmp_path):
+    out = tmp_path / "summary.json"
+    ok = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "suture_bench.cli",
+            str(SAMPLE),
+            "--masks",
+            "ground_truth",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert ok.returncode == 0, ok.stderr
+    summary = json.loads(out.read_text())
+    assert set(summary) >= KEYS and summary["masks"] == "ground_truth"
+    assert 0.0 <= summary["ordering"]["success_rate"] <= 1.0
+    assert "ordering ok" in ok.stdout
+    bad = subprocess.run(
+        [sys.executable, "-m", "suture_bench.cli", str(tmp_path / "missing")], capture_output=True, text=True
+    )
+    assert (
+        bad.returncode == 1 and len(bad.stderr.strip().splitlines()) == 1 and "does not exist" in bad.stderr
+    )

@@ -1,0 +1,112 @@
+"""Mask cleaning: input checks, small holes filled, specks removed, the search's padded lookup arrays.
+
+The ordering search only needs the cleaned mask and a slightly dilated "zone"
+(for the out-of-zone count O of Eq. 5), both padded so that RoI circles around
+any mask pixel never leave the array. Cleaning uses one ``cv2.findContours``
+pass (outer contours and holes, about 0.1 ms for a 640x480 mask):
+
+* holes (background enclosed by the mask) of at most ``max_hole_area`` px² are
+  filled: segmentation dropouts inside a thick thread or at a crossing;
+  a loop's interior is far larger and is kept;
+* components whose bounding box is smaller than ``min_blob_extent`` px in both
+  directions are removed: specks that are no thread.
+
+Spurs need no pruning here: the search never walks the skeleton (it reads
+cross-sections of the mask on circles, see :mod:`suture_ordering.search`); the
+skeleton is used only near the cut tip (:mod:`suture_ordering.tip`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from suture_ordering.errors import EmptyMaskError, InvalidInputError
+from suture_ordering.params import ScaledParams
+
+
+@dataclass(frozen=True)
+class CleanMask:
+    """A cleaned mask and the padded arrays the search reads.
+
+    ``mask``: (H, W) uint8, 1 on the thread. ``padded`` and ``zone``: (H + 2 pad, W + 2 pad)
+    uint8, the mask and the mask dilated by the zone margin, 0 in the padding; ``sampled``:
+    ``padded`` as float32 for bilinear sampling. Pixel (u, v) of the image is
+    ``padded[v + pad, u + pad]``.
+    """
+
+    mask: np.ndarray
+    padded: np.ndarray
+    zone: np.ndarray
+    sampled: np.ndarray
+    pad: int
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.mask.shape  # type: ignore[return-value]
+
+
+def as_binary_mask(mask: np.ndarray, view: str | None = None) -> np.ndarray:
+    """Check a mask argument and return it as (H, W) uint8 in {0, 1} (nonzero = thread).
+
+    Accepts (H, W) uint8 (0/255 as on ``/suture/*/mask``, any nonzero value counts) or bool.
+    Raises InvalidInputError for other shapes or dtypes and EmptyMaskError for an all-zero mask.
+    """
+    array = np.asarray(mask)
+    if array.ndim != 2 or array.shape[0] < 2 or array.shape[1] < 2:
+        raise InvalidInputError(f"mask must be a 2D (H, W) array, got shape {array.shape}", view)
+    if array.dtype == np.bool_:
+        binary = array.view(np.uint8)
+    elif array.dtype == np.uint8:
+        binary = (array > 0).view(np.uint8)
+    else:
+        raise InvalidInputError(
+            f"mask must be uint8 (0/255) or bool, got {array.dtype}; "
+            "convert with (mask > 0).astype(np.uint8)",
+            view,
+        )
+    binary = np.ascontiguousarray(binary)
+    if not binary.any():
+        raise EmptyMaskError("mask is empty: no thread pixel (segmentation found no suture)", view)
+    return binary
+
+
+def clean_mask(
+    mask: np.ndarray, scaled: ScaledParams, zone_margin: int, pad: int, view: str | None = None
+) -> CleanMask:
+    """Validate, clean and pad ``mask`` ((H, W) uint8 0/255 or bool) for the search.
+
+    ``pad`` is the padding in pixels (at least the farthest the search looks from a mask
+    pixel). Raises InvalidInputError or EmptyMaskError (also when only specks remain).
+    """
+    binary = as_binary_mask(mask, view).copy()
+    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is not None:
+        parents = hierarchy[0][:, 3]
+        for index, contour in enumerate(contours):
+            if parents[index] < 0:  # outer boundary of a component
+                _, _, w, h = cv2.boundingRect(contour)
+                if max(w, h) < scaled.min_blob_extent:
+                    cv2.drawContours(binary, contours, index, 0, thickness=cv2.FILLED)
+            elif cv2.contourArea(contour) <= scaled.max_hole_area:  # a small hole
+                cv2.drawContours(binary, contours, index, 1, thickness=cv2.FILLED)
+    if not binary.any():
+        raise EmptyMaskError(
+            f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view
+        )
+    if zone_margin > 0:
+        size = 2 * zone_margin + 1
+        zone = cv2.dilate(binary, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)))
+    else:
+        zone = binary
+    border = cv2.BORDER_CONSTANT
+    padded = cv2.copyMakeBorder(binary, pad, pad, pad, pad, border, value=0)
+    return CleanMask(
+        mask=binary,
+        padded=padded,
+        zone=cv2.copyMakeBorder(zone, pad, pad, pad, pad, border, value=0),
+        sampled=padded.astype(np.float32),
+        pad=pad,
+    )

@@ -1,0 +1,206 @@
+"""ROS-free entry points of the ordering stage: :func:`order_sequence` (one view) and
+:func:`order_stereo` (a rectified pair), as called by ``ordering_node`` and the offline evaluator.
+
+Shapes and units: masks are (H, W) uint8 (0/255) or bool; pixels are (u, v) =
+(column, row) float64, the centre of the top-left pixel at (0, 0); sequences are
+(N, 2) float64 (u, v) from the cut tip, about 1 px apart.
+
+Pipeline per view: :func:`suture_ordering.cleaning.clean_mask` (holes, specks),
+cut tip (:mod:`suture_ordering.tip`), then the search of the paper's Section II.B
+(:mod:`suture_ordering.search`). The right view's tip follows from the left one
+(same row, disparity in the range of ``min_depth_m``..``max_depth_m``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from suture_common.camera import StereoCamera
+from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
+from suture_ordering.errors import InvalidInputError
+from suture_ordering.params import OrderingParams, ScaledParams
+from suture_ordering.search import Searcher
+from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
+
+
+@dataclass(frozen=True)
+class OrderingResult:
+    """The ordered centreline of one view.
+
+    ``points``: (N, 2) float64 (u, v) from the cut tip, ~1 px apart (an open polyline).
+    ``bridged``: (N,) bool, True where a point was interpolated across a gap in the mask
+    (e.g. under an instrument). ``tip``: (2,) the free end the search started from.
+    ``tip_source``: 'hint', 'automatic' or 'epipolar' (right view from the left tip).
+    ``status``: how the search ended: 'free_end', 'image_border' or 'max_steps'.
+    ``eps``: (ε1, ε2, ε3) chosen by the tuning of Eq. (7). ``steps``: search loops of the
+    chosen run; ``bridges``: gaps bridged; ``forks``: times the parameter sets disagreed.
+    ``elapsed_ms``: wall time of the whole call (cleaning, tip, search).
+    """
+
+    points: np.ndarray
+    bridged: np.ndarray
+    tip: np.ndarray
+    tip_source: str
+    status: str
+    eps: tuple[float, float, float]
+    steps: int
+    bridges: int
+    forks: int
+    elapsed_ms: float
+
+    @property
+    def visible(self) -> np.ndarray:
+        """(M, 2) ``points`` without those interpolated across gaps (the published sequence)."""
+        return self.points[~self.bridged]
+
+    @property
+    def length_px(self) -> float:
+        """Length of the ordered polyline in pixels."""
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+
+@dataclass(frozen=True)
+class StereoOrdering:
+    """Ordered sequences of both views of a rectified pair.
+
+    ``left`` and ``right``: (N, 2) and (M, 2) float64 (u, v) from the cut tip: the visible
+    centreline, ~1 px apart; a gap the search bridged (e.g. under an instrument) appears as
+    one longer segment between the last point before and the first point after it, since
+    nothing under the occluder can be seen, matched between the views or triangulated.
+    ``left_result`` / ``right_result``: the per-view :class:`OrderingResult` (with the gap
+    interpolation in ``points``, status and diagnostics).
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    left_result: OrderingResult
+    right_result: OrderingResult
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    clean: CleanMask
+    scaled: ScaledParams
+    searcher: Searcher
+
+
+def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Prepared:
+    binary = as_binary_mask(mask, view)
+    scaled = ScaledParams.from_params(params, binary.shape[1])
+    pad = scaled.max_reach + scaled.step_radius + 3
+    clean = clean_mask(binary, scaled, int(params.zone_margin_px), pad, view)
+    return _Prepared(clean, scaled, Searcher(clean, params, scaled))
+
+
+def _search(prepared: _Prepared, tip: np.ndarray, source: str, started: float) -> OrderingResult:
+    found = prepared.searcher.run(tip)
+    return OrderingResult(
+        points=found.points,
+        bridged=found.bridged,
+        tip=np.asarray(tip, dtype=np.float64),
+        tip_source=source,
+        status=found.status,
+        eps=found.eps,
+        steps=found.steps,
+        bridges=found.bridges,
+        forks=found.forks,
+        elapsed_ms=(time.perf_counter() - started) * 1e3,
+    )
+
+
+def order_sequence(
+    mask: np.ndarray,
+    tip: np.ndarray | None,
+    params: OrderingParams | None = None,
+    *,
+    view: str | None = None,
+) -> OrderingResult:
+    """Order the centreline of the thread whose cut tip is at (or near) ``tip``.
+
+    Parameters
+    ----------
+    mask : (H, W) uint8 (0/255) or bool
+        Every thread pixel of the view.
+    tip : (2,) float (u, v) or None
+        A pixel near the cut tip (within ``params.tip_radius_px``); the search starts at the
+        free end nearest to it. None: the automatic rule of :mod:`suture_ordering.tip`.
+    params : OrderingParams, optional
+    view : str, optional
+        'left' or 'right', only used to prefix error messages.
+
+    Returns
+    -------
+    OrderingResult
+        ``points`` (N, 2) float64 from the cut tip.
+
+    Raises
+    ------
+    InvalidInputError, EmptyMaskError, TipOutsideImageError, TipNotOnThreadError, NoFreeEndError
+        All subclasses of :class:`suture_ordering.errors.OrderingError` (a ``ValueError``).
+    """
+    started = time.perf_counter()
+    params = OrderingParams() if params is None else params
+    if tip is not None:  # reject a bad hint before spending time on the mask
+        shape = np.shape(mask)
+        if len(shape) == 2:
+            check_hint(tip, shape[1], shape[0], view)
+    prepared = _prepare(mask, params, view)
+    if tip is None:
+        start, source = automatic_tip(prepared.clean.mask, prepared.scaled.tip_radius, view), "automatic"
+    else:
+        start, source = tip_from_hint(prepared.clean.mask, tip, prepared.scaled.tip_radius, view), "hint"
+    return _search(prepared, start, source, started)
+
+
+def order_stereo(
+    left_mask: np.ndarray,
+    right_mask: np.ndarray,
+    tip_hint: np.ndarray | None,
+    camera: StereoCamera,
+    params: OrderingParams | None = None,
+) -> StereoOrdering:
+    """Order the target thread in both views of a rectified stereo pair.
+
+    Parameters
+    ----------
+    left_mask, right_mask : (H, W) uint8 (0/255) or bool
+        Thread masks of the left and right views, of the camera's size.
+    tip_hint : (2,) float (u, v) or None
+        Pixel near the cut tip in the **left** image (``/suture/tip_hint``); None: automatic.
+    camera : suture_common.camera.StereoCamera
+        The rectified pair; bounds the right tip's disparity to
+        ``[camera.disparity(max_depth_m), camera.disparity(min_depth_m)]``.
+    params : OrderingParams, optional
+
+    Returns
+    -------
+    StereoOrdering
+        ``left`` (N, 2) and ``right`` (M, 2) float64 (u, v) from the cut tip, and per-view results.
+
+    Raises
+    ------
+    OrderingError
+        A subclass naming the view and the problem (see :func:`order_sequence`); also
+        :class:`InvalidInputError` when a mask's size differs from the camera's.
+    """
+    params = OrderingParams() if params is None else params
+    for view, mask in (("left", left_mask), ("right", right_mask)):
+        shape = np.shape(mask)
+        if shape[:2] != (camera.height, camera.width) or len(shape) != 2:
+            raise InvalidInputError(
+                f"mask shape {shape} does not match the camera: expected (H, W) = "
+                f"({camera.height}, {camera.width}) from camera_info",
+                view,
+            )
+    left = order_sequence(left_mask, tip_hint, params, view="left")
+    started = time.perf_counter()
+    prepared = _prepare(right_mask, params, "right")
+    d_min = float(camera.disparity(params.max_depth_m))
+    d_max = float(camera.disparity(params.min_depth_m))
+    scaled = prepared.scaled
+    start = right_tip(prepared.clean.mask, left.tip, (d_min, d_max), scaled.row_tolerance, scaled.tip_radius)
+    right = _search(prepared, start, "epipolar", started)
+    return StereoOrdering(left=left.visible, right=right.visible, left_result=left, right_result=right)

@@ -1,0 +1,219 @@
+"""ordering_node: thread masks in, ordered centreline sequences out, through :func:`order_stereo`.
+
+Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data QoS),
+``/suture/tip_hint`` (geometry_msgs/PointStamped, optional, the latest is used) and
+``/stereo/{left,right}/camera_info``; pairs the masks by exact ``header.stamp``
+(:class:`suture_common.stamp_buffer.StampPairBuffer`) and publishes
+``/suture/{left,right}/sequence`` (geometry_msgs/PolygonStamped, x = u, y = v, z = 0,
+header = that mask's header, reliable QoS) for each pair.
+
+Parameters: every field of :class:`suture_ordering.OrderingParams` under its own name
+(pixel lengths for a 640 px wide image, scaled with the mask width;
+``reference_width_px`` 0 means "use the pixel values unscaled"; the ε ranges as
+``[low, high]``), plus ``max_pending`` (unmatched masks kept per side, default 10) and
+``hint_max_age`` (s; a tip hint older than this relative to the masks is ignored, 0 =
+any age, default 0). They are read at start-up.
+
+A malformed input (wrong encoding, size mismatch, missing camera_info, empty mask, tip
+hint outside the image or NaN, a thread without free end...) drops that frame with one
+throttled warning naming the problem; the node keeps serving.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PointStamped, PolygonStamped
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
+from suture_common.camera import CameraModelError, StereoCamera
+from suture_common.messages import MessageConversionError, image_to_array, ns_from_stamp, polygon_message
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, to_rclpy
+from suture_common.stamp_buffer import StampPairBuffer
+from suture_common.topics import (
+    LEFT_CAMERA_INFO,
+    LEFT_MASK,
+    LEFT_SEQUENCE,
+    RIGHT_CAMERA_INFO,
+    RIGHT_MASK,
+    RIGHT_SEQUENCE,
+    TIP_HINT,
+)
+from suture_ordering.core import order_stereo
+from suture_ordering.errors import OrderingError
+from suture_ordering.params import OrderingParams
+
+NODE_NAME = "ordering_node"
+WARN_PERIOD_S = 2.0
+
+NODE_DEFAULTS: dict[str, Any] = {"max_pending": 10, "hint_max_age": 0.0}
+
+
+def _parameter_defaults() -> dict[str, Any]:
+    """ROS parameter names and defaults: OrderingParams fields (tuples as lists, None as 0.0)."""
+    defaults: dict[str, Any] = {}
+    for field in dataclasses.fields(OrderingParams):
+        value = field.default
+        if isinstance(value, tuple):
+            value = [float(x) for x in value]
+        elif value is None:
+            value = 0.0
+        elif isinstance(value, float):
+            value = float(value)
+        defaults[field.name] = value
+    return {**defaults, **NODE_DEFAULTS}
+
+
+def params_from_values(values: dict[str, Any]) -> OrderingParams:
+    """OrderingParams from ROS parameter values (see :func:`_parameter_defaults`)."""
+    kwargs: dict[str, Any] = {}
+    for field in dataclasses.fields(OrderingParams):
+        value = values[field.name]
+        if isinstance(field.default, tuple):
+            value = tuple(float(x) for x in value)
+        elif field.name == "reference_width_px":
+            value = None if float(value) <= 0 else float(value)
+        elif isinstance(field.default, bool):
+            value = bool(value)
+        elif isinstance(field.default, int):
+            value = int(value)
+        else:
+            value = float(value)
+        kwargs[field.name] = value
+    return OrderingParams(**kwargs)
+
+
+class OrderingNode(Node):
+    """Thin adapter between ROS topics and :func:`suture_ordering.order_stereo`."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        for name, default in _parameter_defaults().items():
+            self.declare_parameter(name, default)
+        values = {name: self.get_parameter(name).value for name in _parameter_defaults()}
+        self.params = params_from_values(values)  # raises ValueError on a bad value
+        self.hint_max_age_ns = int(float(values["hint_max_age"]) * 1e9)
+        self.pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
+        self._camera_info: dict[str, CameraInfo] = {}
+        self._camera: StereoCamera | None = None
+        self._hint: PointStamped | None = None
+        self._last_warning: dict[str, float] = {}
+        self.frames_published = 0
+        self._left_pub = self.create_publisher(PolygonStamped, LEFT_SEQUENCE, RELIABLE_QOS)
+        self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
+        self.create_subscription(Image, LEFT_MASK, lambda m: self._on_mask("left", m), SENSOR_DATA_QOS)
+        self.create_subscription(Image, RIGHT_MASK, lambda m: self._on_mask("right", m), SENSOR_DATA_QOS)
+        self.create_subscription(PointStamped, TIP_HINT, self._on_hint, SENSOR_DATA_QOS)
+        self.create_subscription(
+            CameraInfo, LEFT_CAMERA_INFO, lambda m: self._on_camera_info("left", m), SENSOR_DATA_QOS
+        )
+        self.create_subscription(
+            CameraInfo, RIGHT_CAMERA_INFO, lambda m: self._on_camera_info("right", m), SENSOR_DATA_QOS
+        )
+
+    # ------------------------------------------------------------------ callbacks
+
+    def _warn(self, problem: str, message: str) -> None:
+        """One warning per ``problem`` every WARN_PERIOD_S seconds."""
+        now = time.monotonic()
+        if now - self._last_warning.get(problem, -np.inf) >= WARN_PERIOD_S:
+            self._last_warning[problem] = now
+            self.get_logger().warning(message)
+
+    def _on_camera_info(self, side: str, message: CameraInfo) -> None:
+        self._camera_info[side] = message
+        self._camera = None  # rebuilt on the next frame
+
+    def _on_hint(self, message: PointStamped) -> None:
+        self._hint = message
+
+    def _on_mask(self, side: str, message: Image) -> None:
+        stamp_ns = ns_from_stamp(message.header.stamp)
+        paired = self.pairer.add(side, stamp_ns, message)
+        if paired is not None:
+            left, right = paired
+            self._process(stamp_ns, left, right)
+
+    # ------------------------------------------------------------------ one stereo pair
+
+    def _stereo_camera(self) -> StereoCamera | None:
+        if self._camera is None:
+            missing = [side for side in ("left", "right") if side not in self._camera_info]
+            if missing:
+                self._warn(
+                    "camera_info",
+                    f"dropped masks: no {' or '.join(missing)} camera_info received yet "
+                    f"({LEFT_CAMERA_INFO}, {RIGHT_CAMERA_INFO})",
+                )
+                return None
+            try:
+                self._camera = StereoCamera.from_camera_info(
+                    self._camera_info["left"], self._camera_info["right"]
+                )
+            except CameraModelError as exc:
+                self._warn("camera_info", f"dropped masks: unusable camera_info: {exc}")
+                return None
+        return self._camera
+
+    def _tip_hint(self, stamp_ns: int) -> np.ndarray | None:
+        if self._hint is None:
+            return None
+        if (
+            self.hint_max_age_ns > 0
+            and stamp_ns - ns_from_stamp(self._hint.header.stamp) > self.hint_max_age_ns
+        ):
+            return None
+        point = self._hint.point
+        return np.array([point.x, point.y], dtype=np.float64)  # NaN is reported by order_stereo
+
+    def _process(self, stamp_ns: int, left: Image, right: Image) -> None:
+        camera = self._stereo_camera()
+        if camera is None:
+            return
+        try:
+            left_mask = image_to_array(left, expect="mono8")
+            right_mask = image_to_array(right, expect="mono8")
+        except MessageConversionError as exc:
+            self._warn("mask", f"dropped masks at {stamp_ns} ns: {exc}")
+            return
+        try:
+            result = order_stereo(left_mask, right_mask, self._tip_hint(stamp_ns), camera, self.params)
+        except OrderingError as exc:
+            self._warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
+            return
+        for publisher, points, header in (
+            (self._left_pub, result.left, left.header),
+            (self._right_pub, result.right, right.header),
+        ):
+            publisher.publish(to_rclpy(polygon_message(points, stamp_ns, header.frame_id)))
+        self.frames_published += 1
+
+
+def main(args: Sequence[str] | None = None) -> None:
+    """``ros2 run suture_ordering ordering_node``: spin until Ctrl-C or shutdown."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = OrderingNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C skips the clean-up
+            if node is not None:
+                node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()

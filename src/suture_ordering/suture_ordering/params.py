@@ -1,0 +1,206 @@
+"""Parameters of the ordering search (paper Section II.B) and their resolution-dependent values.
+
+Lengths are in pixels **for an image 640 px wide**; with ``reference_width_px``
+set (the default, 640) they scale linearly with the width of the mask being
+ordered, so the same parameters serve 640x480 and 1280x1024 (areas scale with
+the square). Set ``reference_width_px=None`` to use the pixel values as given.
+Angles are radians.
+
+Correspondence with the paper (Eq. 4-7):
+
+============================  =========================  ==========================
+paper                          here                        default (at 640 px)
+============================  =========================  ==========================
+RoI radius Υ                   ``roi_radius_px``            24 px
+(nodes nearer than this are    ``step_radius_px``           8 px
+covered by the next chord)
+μ                              ``mu``                       0.01
+R1, R2, R3 (ε1, ε2, ε3)        ``eps1_range`` ...           [1, 5], [0.1, 0.5], [0.02, 0.1]
+grid over R1 x R2 x R3         ``grid_size`` per range      3 (27 parameter sets)
+τ_O = 2.6 Υ                    ``tau_o_factor`` x Υ         2.6 x 24 = 62.4 px
+τ_V = 2π/3                     ``tau_v``                    2.094 rad
+============================  =========================  ==========================
+
+The choices where the paper is silent are documented in :mod:`suture_ordering.search`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+
+@dataclass(frozen=True)
+class OrderingParams:
+    """Tunable values of mask cleaning, tip localisation and the sequence search.
+
+    Pixel lengths are for a 640 px wide image (see the module docstring).
+    """
+
+    #: Υ: radius of the Region of Interest around the current vertex (px).
+    roi_radius_px: float = 24.0
+    #: Inner radius of the RoI: the nearest active nodes lie this far from the vertex, so the
+    #: search advances by about this much per step (px).
+    step_radius_px: float = 8.0
+    #: Centreline nodes within this distance of the path already traversed are detected (px).
+    detect_radius_px: float = 2.5
+    #: The "zone" for the out-of-zone count O is the mask dilated by this many pixels (int).
+    zone_margin_px: int = 1
+    #: μ of Eq. (5): a small positive gain; O = 0 costs log(μ).
+    mu: float = 0.01
+    #: R1, R2, R3 of Eq. (7): ranges of ε1 (out-of-zone), ε2 (distance), ε3 (turning angle).
+    eps1_range: tuple[float, float] = (1.0, 5.0)
+    eps2_range: tuple[float, float] = (0.1, 0.5)
+    eps3_range: tuple[float, float] = (0.02, 0.1)
+    #: Values per range in the tuning grid of Eq. (7) (grid_size**3 parameter sets; 1: midpoints).
+    grid_size: int = 3
+    #: τ_O = tau_o_factor x Υ (px): candidates with O >= τ_O are not admissible.
+    tau_o_factor: float = 2.6
+    #: τ_V: candidates turning by δ >= τ_V are not admissible (rad).
+    tau_v: float = 2.0 * math.pi / 3.0
+    #: Measure δ from the direction predicted by the thread's curvature (the last chord turned
+    #: by the last turn) instead of the last chord alone (the paper's literal Eq. 4).
+    curvature_prediction: bool = True
+    #: Largest turn the curvature prediction extrapolates (rad).
+    max_predicted_turn: float = math.radians(45.0)
+    #: A candidate whose chord leaves the zone (O > 0, a bridged gap) may turn at most this much,
+    #: and the thread beyond it must continue within this angle of the chord (rad).
+    bridge_turn_max: float = math.radians(45.0)
+    #: ... and bend like one smooth arc: the turns into and out of the chord may differ by at most
+    #: this (rad).
+    bridge_bend_max: float = math.radians(20.0)
+    #: At a junction where every branch ahead bends by at least this much, the thread ends (rad).
+    junction_bend_max: float = math.radians(30.0)
+    #: At a junction, a branch must bend this much less than the next to be chosen from afar (rad).
+    junction_tie: float = math.radians(8.0)
+    #: At a junction with four arms, the strands must meet at least at this angle to be taken as
+    #: crossing (the thread then goes straight across); below it they are taken to touch (rad).
+    min_crossing_angle: float = math.radians(8.0)
+    #: A cross-section (run of mask pixels along a RoI circle) wider than this factor times the
+    #: thread width gives one node per edge instead of one at its middle.
+    wide_arc_factor: float = 1.6
+    #: The cut tip is the free end nearest to the tip hint, at most this far from it (px).
+    tip_radius_px: float = 12.0
+    #: Holes of at most this area inside the mask are filled (px², scales with width²).
+    max_hole_area_px: float = 20.0
+    #: Mask components whose bounding box is smaller than this in both directions are removed (px).
+    min_blob_extent_px: float = 5.0
+    #: Right-view tip: at most this many rows from the left tip's row (px).
+    row_tolerance_px: float = 3.0
+    #: Right-view tip: depth range that bounds the disparity search (m).
+    min_depth_m: float = 0.05
+    max_depth_m: float = 0.15
+    #: Upper bound on search steps (a safeguard; a 640 px image needs < 200).
+    max_steps: int = 2000
+    #: Width the pixel values above refer to; None: use them unscaled.
+    reference_width_px: float | None = 640.0
+
+    def __post_init__(self) -> None:
+        positive = (
+            "roi_radius_px",
+            "step_radius_px",
+            "detect_radius_px",
+            "mu",
+            "tau_o_factor",
+            "tau_v",
+            "bridge_turn_max",
+            "bridge_bend_max",
+            "min_crossing_angle",
+            "junction_bend_max",
+            "junction_tie",
+            "max_predicted_turn",
+            "wide_arc_factor",
+            "tip_radius_px",
+            "min_blob_extent_px",
+            "row_tolerance_px",
+            "min_depth_m",
+        )
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"OrderingParams.{name} must be a positive number, got {value!r}")
+        if self.step_radius_px < 2 or self.step_radius_px > self.roi_radius_px:
+            raise ValueError(
+                f"OrderingParams.step_radius_px must lie in [2, roi_radius_px={self.roi_radius_px}], "
+                f"got {self.step_radius_px}"
+            )
+        if self.detect_radius_px >= self.step_radius_px:
+            raise ValueError(
+                f"OrderingParams.detect_radius_px ({self.detect_radius_px}) must be smaller than "
+                f"step_radius_px ({self.step_radius_px})"
+            )
+        if not self.max_depth_m > self.min_depth_m:
+            raise ValueError(
+                f"OrderingParams.max_depth_m ({self.max_depth_m}) must exceed "
+                f"min_depth_m ({self.min_depth_m})"
+            )
+        if self.tau_v > math.pi:
+            raise ValueError(f"OrderingParams.tau_v must be at most pi, got {self.tau_v}")
+        for name in ("eps1_range", "eps2_range", "eps3_range"):
+            low, high = getattr(self, name)
+            if not (0 < low <= high and math.isfinite(high)):
+                raise ValueError(
+                    f"OrderingParams.{name} must be (low, high) with 0 < low <= high, got {(low, high)}"
+                )
+        if int(self.grid_size) != self.grid_size or self.grid_size < 1:
+            raise ValueError(f"OrderingParams.grid_size must be a positive integer, got {self.grid_size}")
+        if int(self.zone_margin_px) != self.zone_margin_px or self.zone_margin_px < 0:
+            raise ValueError(
+                f"OrderingParams.zone_margin_px must be a non-negative integer, got {self.zone_margin_px}"
+            )
+        if self.max_hole_area_px < 0:
+            raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
+        if int(self.max_steps) != self.max_steps or self.max_steps < 1:
+            raise ValueError(f"OrderingParams.max_steps must be a positive integer, got {self.max_steps}")
+        if self.reference_width_px is not None and not self.reference_width_px > 0:
+            raise ValueError(
+                f"OrderingParams.reference_width_px must be positive or None, got {self.reference_width_px}"
+            )
+
+    def scale_for(self, width: int) -> float:
+        """Factor applied to pixel lengths for a mask ``width`` pixels wide."""
+        return 1.0 if self.reference_width_px is None else width / self.reference_width_px
+
+    def with_updates(self, **changes: object) -> OrderingParams:
+        """A copy with some fields replaced (validated again)."""
+        return replace(self, **changes)
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Names of all fields, in declaration order (for ROS parameter declaration)."""
+        return tuple(f.name for f in fields(cls))
+
+
+@dataclass(frozen=True)
+class ScaledParams:
+    """Pixel values of :class:`OrderingParams` for one image width (internal to the search)."""
+
+    step_radius: int
+    roi_radius: int
+    tau_o: float
+    max_reach: int
+    detect_radius: float
+    tip_radius: float
+    max_hole_area: float
+    min_blob_extent: float
+    row_tolerance: float
+    scale: float
+
+    @classmethod
+    def from_params(cls, params: OrderingParams, width: int) -> ScaledParams:
+        s = params.scale_for(width)
+        step = max(2, round(params.step_radius_px * s))
+        roi = max(step, round(params.roi_radius_px * s))
+        tau_o = params.tau_o_factor * roi
+        return cls(
+            step_radius=step,
+            roi_radius=roi,
+            tau_o=tau_o,
+            max_reach=max(roi, math.ceil(tau_o)),
+            detect_radius=params.detect_radius_px * s,
+            tip_radius=params.tip_radius_px * s,
+            max_hole_area=params.max_hole_area_px * s * s,
+            min_blob_extent=params.min_blob_extent_px * s,
+            row_tolerance=params.row_tolerance_px * s,
+            scale=s,
+        )

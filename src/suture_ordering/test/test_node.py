@@ -1,0 +1,165 @@
+"""ordering_node over rclpy: masks, tip hint and camera_info in, both sequences out; bad input dropped.
+
+Each test uses its own rclpy Context on a DDS domain derived from the process id, so
+parallel test processes do not hear each other.
+"""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import PolygonStamped
+from rclpy.executors import SingleThreadedExecutor
+from scipy.spatial import cKDTree
+
+from suture_common import topics
+from suture_common.camera import StereoCamera
+from suture_common.messages import camera_info_message, image_message, point_message, polygon_to_array
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, spin_until, to_rclpy
+from suture_ordering.ordering_node import OrderingNode
+
+W, H = 640, 480
+STAMP = 1_700_000_000_000_000_000
+
+
+def _scene(disparity: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = np.linspace(0, 1, 1500)
+    truth = np.column_stack([150 + 380 * s, 120 + 250 * s + 60 * np.sin(3 * s)])
+    left = np.zeros((H, W), np.uint8)
+    cv2.polylines(left, [np.rint(truth).astype(np.int32)], False, 255, 3)
+    right = np.zeros_like(left)
+    right[:, : W - disparity] = left[:, disparity:]
+    return left, right, truth
+
+
+@pytest.fixture
+def ros():
+    """(context, executor, node under test, helper node, received sequences by topic)."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=140 + os.getpid() % 60)
+    node = OrderingNode(context=context)
+    helper = rclpy.create_node("ordering_test_helper", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(helper)
+    received: dict[str, list[PolygonStamped]] = {topics.LEFT_SEQUENCE: [], topics.RIGHT_SEQUENCE: []}
+    for topic, store in received.items():
+        helper.create_subscription(PolygonStamped, topic, store.append, RELIABLE_QOS)
+    publishers = {
+        topic: helper.create_publisher(kind, topic, SENSOR_DATA_QOS)
+        for topic, kind in (
+            (topics.LEFT_MASK, node_types()["Image"]),
+            (topics.RIGHT_MASK, node_types()["Image"]),
+            (topics.TIP_HINT, node_types()["PointStamped"]),
+            (topics.LEFT_CAMERA_INFO, node_types()["CameraInfo"]),
+            (topics.RIGHT_CAMERA_INFO, node_types()["CameraInfo"]),
+        )
+    }
+    try:
+        yield executor, node, publishers, received
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        helper.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def node_types() -> dict[str, type]:
+    from geometry_msgs.msg import PointStamped
+    from sensor_msgs.msg import CameraInfo, Image
+
+    return {"Image": Image, "PointStamped": PointStamped, "CameraInfo": CameraInfo}
+
+
+def _wait_for_subscribers(executor, publishers) -> None:
+    assert spin_until(
+        executor, lambda: all(p.get_subscription_count() > 0 for p in publishers.values()), 10.0
+    )
+
+
+def _send_frame(publishers, stamp, left, right, hint, camera, encoding="mono8", executor=None) -> None:
+    """camera_info and tip hint, then (after spinning ``executor`` briefly so they arrive first) masks."""
+    frame_left, frame_right = topics.LEFT_FRAME, topics.RIGHT_FRAME
+    publishers[topics.LEFT_CAMERA_INFO].publish(
+        to_rclpy(camera_info_message(camera, "left", stamp, frame_left))
+    )
+    publishers[topics.RIGHT_CAMERA_INFO].publish(
+        to_rclpy(camera_info_message(camera, "right", stamp, frame_right))
+    )
+    if hint is not None:
+        message = to_rclpy(point_message(np.zeros(3), stamp, frame_left))
+        message.point.x, message.point.y = float(hint[0]), float(hint[1])  # may be NaN on purpose
+        publishers[topics.TIP_HINT].publish(message)
+    if executor is not None:
+        spin_until(executor, lambda: False, 0.05)
+    if encoding == "mono8":
+        left_msg = image_message(left, "mono8", stamp, frame_left)
+    else:
+        left_msg = image_message(np.dstack([left] * 3), encoding, stamp, frame_left)
+    publishers[topics.LEFT_MASK].publish(to_rclpy(left_msg))
+    publishers[topics.RIGHT_MASK].publish(to_rclpy(image_message(right, "mono8", stamp, frame_right)))
+
+
+def test_node_publishes_both_sequences_with_the_pair_stamp(ros):
+    executor, _node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    left, right, truth = _scene()
+    _wait_for_subscribers(executor, publishers)
+    # The hint and camera_info first, then the masks (sensor-data QoS is best effort: resend until heard).
+    for _ in range(20):
+        _send_frame(publishers, STAMP, left, right, truth[0] + 1.0, camera, executor=executor)
+        if spin_until(executor, lambda: all(received.values()), 0.5):
+            break
+    assert all(received.values()), "no sequences after 20 frames"
+    left_seq, right_seq = received[topics.LEFT_SEQUENCE][0], received[topics.RIGHT_SEQUENCE][0]
+    for message, frame in ((left_seq, topics.LEFT_FRAME), (right_seq, topics.RIGHT_FRAME)):
+        assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == STAMP
+        assert message.header.frame_id == frame
+    for message, shift in ((left_seq, 0), (right_seq, 30)):
+        points = polygon_to_array(message)
+        assert np.all(points[:, 2] == 0.0)
+        distance, index = cKDTree(truth - [shift, 0]).query(points[:, :2])
+        assert np.hypot(*(points[0, :2] - truth[0] + [shift, 0])) < 3.0
+        assert distance.max() < 2.0 and index[-1] > 0.95 * len(truth)
+
+
+def test_node_drops_bad_input_and_keeps_serving(ros, caplog):
+    executor, node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    left, right, truth = _scene()
+    _wait_for_subscribers(executor, publishers)
+    bad_frames = [
+        dict(encoding="rgb8"),  # wrong encoding for a mask
+        dict(hint=np.array([np.nan, 10.0])),  # NaN hint
+        dict(hint=np.array([900.0, 10.0])),  # hint outside the image
+        dict(left=np.zeros((H, W), np.uint8)),  # empty mask
+        dict(right=right[:, :600].copy()),  # size mismatch
+    ]
+    for k, bad in enumerate(bad_frames):
+        args = dict(left=left, right=right, hint=truth[0], encoding="mono8") | bad
+        for _ in range(3):
+            _send_frame(
+                publishers,
+                STAMP + k,
+                args["left"],
+                args["right"],
+                args["hint"],
+                camera,
+                args["encoding"],
+                executor,
+            )
+            spin_until(executor, lambda: False, 0.1)
+    assert not any(received.values()) and node.frames_published == 0
+    good = STAMP + 100
+    for _ in range(20):
+        _send_frame(publishers, good, left, right, truth[0], camera, executor=executor)
+        if spin_until(executor, lambda: all(received.values()), 0.5):
+            break
+    assert all(received.values()), "the node stopped serving after bad input"
+    stamp = received[topics.LEFT_SEQUENCE][0].header.stamp
+    assert stamp.sec * 10**9 + stamp.nanosec == good
+    assert len(node._last_warning) >= 4  # each problem was reported (throttled, once per kind)

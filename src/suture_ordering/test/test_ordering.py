@@ -1,0 +1,305 @@
+"""Behaviour of the ordering core on synthetic masks drawn with cv2 and on the sample bag.
+
+Every scene states the thread's true centreline; a result is checked against it:
+starts at the cut tip, stays on the centreline, advances along it, reaches its end.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from suture_common import messages, topics
+from suture_common.bag_io import read_messages
+from suture_common.camera import StereoCamera
+from suture_ordering import (
+    EmptyMaskError,
+    InvalidInputError,
+    NoFreeEndError,
+    OrderingParams,
+    TipNotOnThreadError,
+    TipOutsideImageError,
+    order_sequence,
+    order_stereo,
+)
+
+W, H = 640, 480
+SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
+
+
+def line(a: tuple[float, float], b: tuple[float, float]) -> np.ndarray:
+    """(N, 2) points ~0.5 px apart from a to b."""
+    n = max(2, int(math.hypot(b[0] - a[0], b[1] - a[1]) * 2))
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    return np.asarray(a, float) + t * (np.asarray(b, float) - np.asarray(a, float))
+
+
+def draw(curves: list[np.ndarray], width: int = 3, shape: tuple[int, int] = (H, W)) -> np.ndarray:
+    mask = np.zeros(shape, np.uint8)
+    for curve in curves:
+        cv2.polylines(mask, [np.rint(curve).astype(np.int32)], False, 255, width)
+    return mask
+
+
+def check_follows(
+    points: np.ndarray, truth: np.ndarray, tolerance: float = 2.5, coverage: float = 0.95
+) -> None:
+    """``points`` start at truth[0], stay within ``tolerance`` px of ``truth``, advance along it
+    and reach ``coverage`` of its length.
+
+    Each point is mapped to the first truth sample within ``tolerance`` that is not behind the
+    previous point's sample by more than 10 samples (so the two passes of a loop's crossing are
+    told apart)."""
+    assert np.hypot(*(points[0] - truth[0])) <= 4.0, f"starts at {points[0]}, tip is {truth[0]}"
+    tree = cKDTree(truth)
+    previous = 0
+    for point in points:
+        near = np.sort(tree.query_ball_point(point, tolerance))
+        ahead = near[near >= previous - 10]
+        assert ahead.size, f"{point} is off the thread (or goes backwards) after truth sample {previous}"
+        previous = max(previous, int(ahead[0]))
+    assert previous >= coverage * (len(truth) - 1), "stops short of the thread's end"
+
+
+# --------------------------------------------------------------------------- single threads
+
+
+def test_straight_thread_is_ordered_from_the_hinted_tip():
+    truth = line((100, 100), (500, 300))
+    result = order_sequence(draw([truth]), np.array([103.0, 98.0]))
+    check_follows(result.points, truth, tolerance=1.5)
+    assert result.status == "free_end" and result.tip_source == "hint"
+    assert np.all(np.diff(result.points, axis=0).__abs__().max(axis=1) <= 1.01)  # ~1 px apart
+
+
+def test_the_other_end_as_hint_gives_the_reverse_order():
+    truth = line((100, 100), (500, 300))
+    result = order_sequence(draw([truth]), np.array([500.0, 300.0]))
+    check_follows(result.points, truth[::-1], tolerance=1.5)
+
+
+def test_holes_inside_the_mask_and_specks_beside_it_change_nothing():
+    truth = line((80, 400), (560, 120))
+    mask = draw([truth], width=9)
+    rng = np.random.default_rng(4)
+    for point in truth[rng.choice(len(truth), 25, replace=False)]:
+        cv2.circle(mask, tuple(int(x) for x in point + rng.uniform(-1, 1, 2)), 1, 0, -1)  # 3x3 holes
+    for _ in range(30):  # isolated specks of 1-2 px
+        u, v = rng.integers(20, 620), rng.integers(20, 460)
+        if cKDTree(truth).query([u, v])[0] > 12:
+            mask[v : v + 2, u : u + 2] = 255
+    assert (mask[np.rint(truth[:, 1]).astype(int), np.rint(truth[:, 0]).astype(int)] == 0).any()
+    result = order_sequence(mask, truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+
+
+def test_a_16_px_gap_is_bridged_and_flagged():
+    truth = line((60, 240), (580, 260))
+    mask = draw([truth])
+    cv2.rectangle(mask, (312, 200), (327, 300), 0, -1)  # 16 columns erased
+    result = order_sequence(mask, truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+    assert result.bridges == 1 and result.bridged.sum() >= 10
+    assert np.all(np.abs(result.points[result.bridged, 0] - 320) < 12)
+    visible = result.visible
+    assert np.max(np.hypot(*np.diff(visible, axis=0).T)) >= 16  # one jump across the gap
+
+
+def test_a_gap_longer_than_tau_o_ends_the_sequence():
+    truth = line((60, 240), (580, 240))
+    mask = draw([truth])
+    cv2.rectangle(mask, (300, 200), (379, 280), 0, -1)  # 80 px > tau_O = 2.6 * 24 px
+    result = order_sequence(mask, truth[0])
+    assert result.bridges == 0 and result.status == "free_end"
+    assert 290 <= result.points[-1, 0] < 300
+
+
+def test_a_closed_ring_has_no_free_end():
+    angle = np.linspace(0, 2 * np.pi, 1000)
+    ring = np.column_stack([320 + 90 * np.cos(angle), 240 + 90 * np.sin(angle)])
+    with pytest.raises(NoFreeEndError, match="closed ring"):
+        order_sequence(draw([ring]), np.array([410.0, 240.0]))
+
+
+def test_tip_at_the_image_border():
+    truth = line((0, 200), (400, 330))
+    result = order_sequence(draw([truth]), np.array([1.0, 201.0]))
+    check_follows(result.points, truth, tolerance=2.5)  # cv2 draws a round cap cut by the border
+    assert result.points[0, 0] <= 1.5
+
+
+def test_thread_leaving_the_image_ends_at_the_border():
+    truth = line((200, 200), (639, 330))
+    result = order_sequence(draw([truth]), truth[0])
+    check_follows(result.points, truth, tolerance=1.5)
+    assert result.status == "image_border"
+
+
+@pytest.mark.parametrize("hint", [(-20.0, 100.0), (700.0, 100.0), (100.0, 480.0), (np.nan, 10.0)])
+def test_tip_hint_outside_the_image_is_refused(hint):
+    with pytest.raises(TipOutsideImageError, match="outside|NaN"):
+        order_sequence(draw([line((100, 100), (500, 300))]), np.array(hint))
+
+
+def test_tip_hint_far_from_any_thread():
+    with pytest.raises(TipNotOnThreadError, match="no thread pixel within 12 px"):
+        order_sequence(draw([line((100, 100), (500, 300))]), np.array([300.0, 400.0]))
+
+
+def test_bad_masks_raise_specific_errors():
+    with pytest.raises(EmptyMaskError, match="empty"):
+        order_sequence(np.zeros((H, W), np.uint8), np.array([10.0, 10.0]))
+    with pytest.raises(EmptyMaskError, match="specks"):
+        speck = np.zeros((H, W), np.uint8)
+        speck[10:12, 10:12] = 255
+        order_sequence(speck, np.array([10.0, 10.0]))
+    with pytest.raises(InvalidInputError, match="uint8"):
+        order_sequence(np.ones((H, W), np.float32), np.array([10.0, 10.0]))
+    with pytest.raises(InvalidInputError, match="2D"):
+        order_sequence(np.ones((H, W, 3), np.uint8), np.array([10.0, 10.0]))
+
+
+def test_automatic_tip_takes_the_free_end_nearest_the_image_centre():
+    truth = line((300, 230), (600, 420))
+    result = order_sequence(draw([truth]), None)
+    assert result.tip_source == "automatic"
+    check_follows(result.points, truth, tolerance=1.5)
+
+
+def test_a_sharp_hairpin_ends_the_search_tau_v():
+    """Turning by more than tau_V = 120 degrees is not admissible: a fold ends the sequence."""
+    first = line((100, 240), (400, 240))
+    back = line((400, 240), (400 - 300 * math.cos(math.radians(25)), 240 - 300 * math.sin(math.radians(25))))
+    result = order_sequence(draw([first, back]), first[0])
+    assert result.points[:, 0].max() <= 405 and result.points[-1, 0] >= 390
+    assert result.points[:, 1].min() >= 230  # did not follow the fold back
+
+
+# --------------------------------------------------------------------------- crossings
+
+
+def test_shallow_12_degree_crossing_continues_on_the_same_thread():
+    truth = line((60, 240), (580, 240))
+    a = math.radians(12)
+    other = line(
+        (320 - 220 * math.cos(a), 240 - 220 * math.sin(a)), (320 + 220 * math.cos(a), 240 + 220 * math.sin(a))
+    )
+    result = order_sequence(draw([truth, other]), truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+
+
+def test_right_angle_crossing_with_a_curved_thread():
+    s = np.linspace(0, 1, 1500)
+    truth = np.column_stack([60 + 500 * s, 360 - 260 * s + 120 * np.sin(np.pi * s)])
+    other = line((330, 60), (330, 460))
+    result = order_sequence(draw([truth, other]), truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+
+
+def test_two_threads_touching_side_by_side_for_a_stretch():
+    truth = line((60, 240), (580, 240))
+    # The other thread joins from below, runs alongside touching it for 160 px, and leaves.
+    other = np.vstack(
+        [line((100, 330), (220, 243)), line((220, 243), (380, 243)), line((380, 243), (540, 330))]
+    )
+    result = order_sequence(draw([truth, other]), truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+    # The same from above.
+    other = np.vstack(
+        [line((100, 150), (220, 237)), line((220, 237), (380, 237)), line((380, 237), (540, 150))]
+    )
+    check_follows(order_sequence(draw([truth, other]), truth[0]).points, truth, tolerance=2.0)
+
+
+def test_a_loop_is_traversed_through_its_own_crossing():
+    t = np.linspace(-1.1 * np.pi, 1.1 * np.pi, 3000)  # a prolate cycloid: one loop
+    truth = np.column_stack([320 + 45 * t - 70 * np.sin(t), 240 - 70 * np.cos(t)])
+    result = order_sequence(draw([truth]), truth[0])
+    check_follows(result.points, truth, tolerance=2.5)
+    assert result.length_px >= 0.95 * float(np.hypot(*np.diff(truth, axis=0).T).sum())
+
+
+# --------------------------------------------------------------------------- stereo
+
+
+def _shifted(mask: np.ndarray, disparity: int) -> np.ndarray:
+    right = np.zeros_like(mask)
+    right[:, : W - disparity] = mask[:, disparity:]
+    return right
+
+
+def test_order_stereo_finds_the_right_tip_on_the_same_row():
+    camera = StereoCamera.default(W, H)  # disparity 17..52 px for 50..150 mm
+    s = np.linspace(0, 1, 1200)
+    truth = np.column_stack([150 + 380 * s, 120 + 250 * s + 60 * np.sin(3 * s)])
+    left = draw([truth])
+    result = order_stereo(left, _shifted(left, 30), truth[0] + 1.5, camera)
+    check_follows(result.left, truth, tolerance=1.5)
+    check_follows(result.right, truth - [30, 0], tolerance=1.5)
+    assert result.right_result.tip_source == "epipolar"
+    assert abs(result.left_result.tip[1] - result.right_result.tip[1]) <= 1.0
+
+
+def test_order_stereo_rejects_a_right_tip_outside_the_disparity_range():
+    camera = StereoCamera.default(W, H)
+    left = draw([line((300, 100), (500, 300))])
+    with pytest.raises(TipNotOnThreadError, match="right view"):
+        order_stereo(left, _shifted(left, 90), np.array([300.0, 100.0]), camera)  # 90 px > 52 px
+
+
+def test_order_stereo_rejects_masks_of_the_wrong_size():
+    camera = StereoCamera.default(W, H)
+    left = draw([line((300, 100), (500, 300))])
+    with pytest.raises(InvalidInputError, match=r"expected \(H, W\) = \(480, 640\)"):
+        order_stereo(left, left[:, :600], np.array([300.0, 100.0]), camera)
+
+
+def test_params_scale_with_the_image_width():
+    truth = line((200, 200), (1000, 700))
+    mask = draw([truth], width=5, shape=(1024, 1280))
+    result = order_sequence(mask, truth[0])
+    check_follows(result.points, truth, tolerance=2.0)
+    assert result.steps < 0.7 * len(
+        order_sequence(mask, truth[0], OrderingParams(reference_width_px=None)).points
+    )
+
+
+def test_sample_bag_frames_are_ordered_like_the_ground_truth():
+    """Every frame of bags/sample (2 per topology, 640x480) with ground-truth masks."""
+    wanted = (
+        topics.GT_LEFT_MASK,
+        topics.GT_RIGHT_MASK,
+        topics.GT_LEFT_SEQUENCE,
+        topics.GT_RIGHT_SEQUENCE,
+        topics.TIP_HINT,
+        topics.LEFT_CAMERA_INFO,
+        topics.RIGHT_CAMERA_INFO,
+    )
+    frames: dict[int, dict] = {}
+    for record in read_messages(SAMPLE_BAG, wanted):
+        frames.setdefault(record.timestamp_ns, {})[record.topic] = record.message
+    assert len(frames) >= 10
+    for frame in frames.values():
+        camera = StereoCamera.from_camera_info(
+            frame[topics.LEFT_CAMERA_INFO], frame[topics.RIGHT_CAMERA_INFO]
+        )
+        result = order_stereo(
+            messages.image_to_array(frame[topics.GT_LEFT_MASK]),
+            messages.image_to_array(frame[topics.GT_RIGHT_MASK]),
+            messages.point_to_array(frame[topics.TIP_HINT])[:2],
+            camera,
+        )
+        for points, truth_topic in (
+            (result.left, topics.GT_LEFT_SEQUENCE),
+            (result.right, topics.GT_RIGHT_SEQUENCE),
+        ):
+            truth = messages.polygon_to_array(frame[truth_topic])[:, :2]
+            distance, index = cKDTree(truth).query(points)
+            assert np.hypot(*(points[0] - truth[0])) <= 5.0
+            assert np.percentile(distance, 99) <= 3.0
+            assert index.max() >= 0.9 * len(truth)
