@@ -293,6 +293,7 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
                 t: {
                     "mean_error_mm": _mean(tally.recon_mean[t], 1000),
                     "max_error_mm": float(np.max(tally.recon_max[t])) * 1000,
+                    "worst_frame_mean_error_mm": float(np.max(tally.recon_mean[t])) * 1000,
                     "grasp_median_error_mm": float(np.median(tally.grasp[t])) * 1000,
                     "grasp_max_error_mm": float(np.max(tally.grasp[t])) * 1000,
                     "length_error_mm": _mean(tally.length_error[t], 1000),
