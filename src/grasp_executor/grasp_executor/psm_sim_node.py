@@ -11,14 +11,12 @@ A goal that is NaN, not a unit quaternion, or in another non-empty frame than
 
 from __future__ import annotations
 
-import contextlib
+import sys
 import time
 from typing import Any
 
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Header
@@ -26,7 +24,7 @@ from std_msgs.msg import Bool, Header
 from grasp_executor.geometry import Pose
 from grasp_executor.psm_sim import KinematicPsm
 from suture_common.messages import pose_message, pose_to_arrays
-from suture_common.ros import RELIABLE_QOS, to_rclpy
+from suture_common.ros import RELIABLE_QOS, run_node, to_rclpy
 
 DEFAULTS: dict[str, Any] = {
     "namespace": "/PSM1",
@@ -110,24 +108,10 @@ class PsmSimNode(Node):
             self._goal_reached.publish(Bool(data=reached))
 
 
-def main(args: list[str] | None = None) -> None:
+def main(args: list[str] | None = None) -> int:
     """``ros2 run grasp_executor psm_sim_node``: spin until Ctrl-C."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        executor = SingleThreadedExecutor()
-        node = PsmSimNode()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        # rclpy's SIGINT handler ends spin() and Python raises KeyboardInterrupt too, possibly only here
-        with contextlib.suppress(KeyboardInterrupt):
-            if node is not None:
-                node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(PsmSimNode, "psm_sim_node", args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

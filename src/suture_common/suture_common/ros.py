@@ -8,12 +8,16 @@ which is also how bag messages are replayed (:func:`from_cdr`).
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
-from rclpy.executors import Executor
+import rclpy
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
 
@@ -81,3 +85,35 @@ def spin_until(executor: Executor, predicate: Callable[[], bool], timeout_s: flo
             return bool(predicate())
         executor.spin_once(timeout_sec=min(0.05, remaining))
     return True
+
+
+def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
+    """The body of a node executable's ``main()`` (what ``ros2 run PKG EXE`` runs).
+
+    Initialises rclpy, builds the node, spins it on a single-threaded executor until Ctrl-C
+    or an external shutdown, and cleans up. A ``ValueError`` while building the node (a bad
+    parameter value) is reported as one line on standard error and exit status 1.
+    Returns the exit status.
+    """
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = make_node()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:
+        if node is not None:
+            raise
+        print(f"{name}: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        # rclpy's SIGINT handler ends spin() and Python may raise KeyboardInterrupt here too;
+        # a second Ctrl-C skips the clean-up.
+        with contextlib.suppress(KeyboardInterrupt):
+            if node is not None:
+                node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -21,22 +21,19 @@ throttled warning naming the problem; the node keeps serving.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
+import sys
 import time
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PointStamped, PolygonStamped
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.messages import MessageConversionError, image_to_array, ns_from_stamp, polygon_message
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, to_rclpy
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, run_node, to_rclpy
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     LEFT_CAMERA_INFO,
@@ -197,23 +194,10 @@ class OrderingNode(Node):
         self.frames_published += 1
 
 
-def main(args: Sequence[str] | None = None) -> None:
+def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_ordering ordering_node``: spin until Ctrl-C or shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = OrderingNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C skips the clean-up
-            if node is not None:
-                node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(OrderingNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

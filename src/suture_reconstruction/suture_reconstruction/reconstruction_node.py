@@ -28,11 +28,9 @@ import time
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
 from std_msgs.msg import Header
@@ -46,7 +44,7 @@ from suture_common.messages import (
     polygon_to_array,
     pose_message,
 )
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, to_rclpy
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, run_node, to_rclpy
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     GRASP_POSE,
@@ -245,25 +243,10 @@ def markers(path: np.ndarray, grasp_position: np.ndarray, header: Header) -> Mar
     return MarkerArray(markers=[line, sphere])
 
 
-def main(args: list[str] | None = None) -> None:
+def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_reconstruction reconstruction_node``: spin until Ctrl-C or shutdown."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ReconstructionNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ValueError as exc:  # bad parameters
-        print(f"{NODE_NAME}: {exc}", file=sys.stderr)
-        sys.exit(1)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(ReconstructionNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
