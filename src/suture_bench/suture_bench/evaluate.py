@@ -24,83 +24,17 @@ from __future__ import annotations
 import importlib
 import time
 from collections import defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from suture_common import messages, topics
-from suture_common.bag_io import BagError, read_messages
-from suture_common.camera import StereoCamera
+from suture_bench.frames import EvaluationError, Frame, find_bags, read_frames
+from suture_common.bag_io import BagError
 
-FRAME_TOPICS = (*topics.INPUT_TOPICS, *topics.GROUND_TRUTH_TOPICS)
 SOURCES = ("predicted", "ground_truth")
-
-
-class EvaluationError(ValueError):
-    """The evaluation cannot start (no bags, unknown source...)."""
-
-
-@dataclass
-class Frame:
-    """One stereo frame of a bag with its ground truth, as numpy arrays (see DESIGN.md)."""
-
-    stamp_ns: int
-    topology: str
-    camera: StereoCamera
-    left_image: np.ndarray
-    right_image: np.ndarray
-    tip_hint: np.ndarray | None
-    true_left_mask: np.ndarray
-    true_right_mask: np.ndarray
-    true_left_sequence: np.ndarray
-    true_right_sequence: np.ndarray
-    true_path: np.ndarray
-    true_grasp: np.ndarray
-
-
-def find_bags(paths: Iterable[str | Path]) -> list[Path]:
-    """Bag directories (with metadata.yaml) or .mcap files named by, or found under, ``paths``."""
-    bags: list[Path] = []
-    for path in map(Path, paths):
-        if not path.exists():
-            raise EvaluationError(f"{path} does not exist")
-        if path.is_file() or (path / "metadata.yaml").exists():
-            bags.append(path)
-            continue
-        found = sorted({p.parent for p in path.rglob("metadata.yaml")})
-        found += sorted(p for p in path.rglob("*.mcap") if not (p.parent / "metadata.yaml").exists())
-        if not found:
-            raise EvaluationError(f"no bags (metadata.yaml or .mcap) under {path}")
-        bags.extend(found)
-    return bags
-
-
-def read_frames(bag: Path) -> Iterator[Frame]:
-    """Frames of one bag in stamp order; frames missing a topic are skipped."""
-    pending: dict[int, dict[str, Any]] = defaultdict(dict)
-    for record in read_messages(bag, FRAME_TOPICS):
-        pending[record.timestamp_ns][record.topic] = record.message
-    for stamp in sorted(pending):
-        got = pending.pop(stamp)
-        if not all(t in got for t in FRAME_TOPICS if t != topics.TIP_HINT):
-            continue
-        yield Frame(
-            stamp_ns=stamp,
-            topology=got[topics.GT_TOPOLOGY].data,
-            camera=StereoCamera.from_camera_info(got[topics.LEFT_CAMERA_INFO], got[topics.RIGHT_CAMERA_INFO]),
-            left_image=messages.image_to_array(got[topics.LEFT_IMAGE]),
-            right_image=messages.image_to_array(got[topics.RIGHT_IMAGE]),
-            tip_hint=messages.point_to_array(got[topics.TIP_HINT])[:2] if topics.TIP_HINT in got else None,
-            true_left_mask=messages.image_to_array(got[topics.GT_LEFT_MASK], expect="mono8") > 0,
-            true_right_mask=messages.image_to_array(got[topics.GT_RIGHT_MASK], expect="mono8") > 0,
-            true_left_sequence=messages.polygon_to_array(got[topics.GT_LEFT_SEQUENCE]),
-            true_right_sequence=messages.polygon_to_array(got[topics.GT_RIGHT_SEQUENCE]),
-            true_path=messages.path_to_array(got[topics.GT_PATH]),
-            true_grasp=messages.pose_to_arrays(got[topics.GT_GRASP_POSE])[0],
-        )
 
 
 @dataclass
@@ -133,7 +67,7 @@ def evaluate(paths: Iterable[str | Path], masks: str = "predicted", sequences: s
     tally = _Tally()
     for bag in find_bags(paths):
         try:
-            for frame in read_frames(bag):
+            for frame in read_frames(bag, images=masks == "predicted"):
                 _evaluate_frame(frame, stages, tally)
         except BagError as error:
             raise EvaluationError(str(error)) from error

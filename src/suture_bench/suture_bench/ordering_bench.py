@@ -22,93 +22,19 @@ standard error when a bag cannot be read.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 from collections import defaultdict
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
 
+from suture_bench.frames import find_bags, read_frames
 from suture_bench.ordering_metrics import ordering_success
-from suture_common import messages, topics
-from suture_common.bag_io import BagError, read_messages
-from suture_common.camera import StereoCamera
+from suture_common.bag_io import BagError
 from suture_ordering import OrderingError, OrderingParams, order_stereo
-
-_TOPICS = (
-    topics.GT_LEFT_MASK,
-    topics.GT_RIGHT_MASK,
-    topics.GT_LEFT_SEQUENCE,
-    topics.GT_RIGHT_SEQUENCE,
-    topics.TIP_HINT,
-    topics.LEFT_CAMERA_INFO,
-    topics.RIGHT_CAMERA_INFO,
-    topics.GT_TOPOLOGY,
-)
-
-
-@dataclass
-class Frame:
-    """One simulated frame's ordering inputs and ground truth."""
-
-    bag: str
-    stamp_ns: int
-    topology: str
-    camera: StereoCamera
-    left_mask: np.ndarray
-    right_mask: np.ndarray
-    left_truth: np.ndarray
-    right_truth: np.ndarray
-    tip_hint: np.ndarray | None
-
-
-def bag_paths(paths: Sequence[str | Path]) -> list[Path]:
-    """Bags named by ``paths``: bag directories, .mcap files, or folders holding bag directories."""
-    found = []
-    for path in map(Path, paths):
-        if path.is_dir() and not (path / "metadata.yaml").exists() and not list(path.glob("*.mcap")):
-            found += sorted(p.parent for p in path.glob("*/metadata.yaml"))
-        else:
-            found.append(path)
-    return found
-
-
-def read_frames(path: Path, limit: int | None = None) -> Iterator[Frame]:
-    """Frames of the bag at ``path`` that carry every ground-truth topic the ordering needs."""
-    by_stamp: dict[int, dict[str, object]] = defaultdict(dict)
-    for record in read_messages(path, _TOPICS):
-        by_stamp[record.timestamp_ns][record.topic] = record.message
-    count = 0
-    for stamp, frame in sorted(by_stamp.items()):
-        needed = (
-            topics.GT_LEFT_MASK,
-            topics.GT_RIGHT_MASK,
-            topics.GT_LEFT_SEQUENCE,
-            topics.GT_RIGHT_SEQUENCE,
-        )
-        if not all(t in frame for t in (*needed, topics.LEFT_CAMERA_INFO, topics.RIGHT_CAMERA_INFO)):
-            continue
-        hint = frame.get(topics.TIP_HINT)
-        topology = frame.get(topics.GT_TOPOLOGY)
-        yield Frame(
-            bag=str(path),
-            stamp_ns=stamp,
-            topology=topology.data if topology is not None else "unknown",  # type: ignore[attr-defined]
-            camera=StereoCamera.from_camera_info(
-                frame[topics.LEFT_CAMERA_INFO], frame[topics.RIGHT_CAMERA_INFO]
-            ),
-            left_mask=messages.image_to_array(frame[topics.GT_LEFT_MASK], expect="mono8"),
-            right_mask=messages.image_to_array(frame[topics.GT_RIGHT_MASK], expect="mono8"),
-            left_truth=messages.polygon_to_array(frame[topics.GT_LEFT_SEQUENCE]),
-            right_truth=messages.polygon_to_array(frame[topics.GT_RIGHT_SEQUENCE]),
-            tip_hint=None if hint is None else messages.point_to_array(hint)[:2],
-        )
-        count += 1
-        if limit is not None and count >= limit:
-            return
 
 
 def single_core() -> str:
@@ -159,12 +85,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     success: dict[tuple[str, str, str], list[bool]] = defaultdict(list)
     timing: dict[str, list[float]] = defaultdict(list)
     try:
-        for path in bag_paths(args.bags):
-            for frame in read_frames(path, args.limit):
+        for path in find_bags(args.bags):
+            for frame in itertools.islice(read_frames(path, images=False), args.limit):
                 resolution = f"{frame.camera.width}x{frame.camera.height}"
                 try:
                     result = order_stereo(
-                        frame.left_mask, frame.right_mask, frame.tip_hint, frame.camera, params
+                        frame.true_left_mask, frame.true_right_mask, frame.tip_hint, frame.camera, params
                     )
                 except OrderingError as exc:
                     for view in ("left", "right"):
@@ -173,8 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         print(f"FAIL {path.name} {frame.stamp_ns} {frame.topology}: {exc}")
                     continue
                 for view, predicted, truth, view_result in (
-                    ("left", result.left, frame.left_truth, result.left_result),
-                    ("right", result.right, frame.right_truth, result.right_result),
+                    ("left", result.left, frame.true_left_sequence, result.left_result),
+                    ("right", result.right, frame.true_right_sequence, result.right_result),
                 ):
                     score = ordering_success(predicted, truth)
                     success[(resolution, frame.topology, view)].append(score.success)

@@ -36,10 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from suture_common import topics
-from suture_common.bag_io import read_messages
-from suture_common.camera import CameraModelError, StereoCamera
-from suture_common.messages import path_to_array, polygon_to_array, pose_to_arrays
+from suture_bench.frames import Frame, find_bags, read_frames
 from suture_reconstruction import ReconstructionError, ReconstructionParams, reconstruct
 
 KEYPOINTS = 10
@@ -240,80 +237,6 @@ TARGETS_MM = {"mean": 0.5, "worst_frame": 1.5, "grasp_median": 1.0, "grasp_max":
 
 TIME_TARGET_MS = 15.0
 
-_GT_TOPICS = (
-    topics.GT_LEFT_SEQUENCE,
-    topics.GT_RIGHT_SEQUENCE,
-    topics.GT_PATH,
-    topics.GT_GRASP_POSE,
-    topics.GT_TOPOLOGY,
-    topics.LEFT_CAMERA_INFO,
-    topics.RIGHT_CAMERA_INFO,
-)
-
-
-@dataclass
-class GroundTruthFrame:
-    """The ground truth of one simulator frame: sequences (N, 2) px, path (Q, 3) m, grasp point (3,) m."""
-
-    stamp_ns: int
-    topology: str
-    camera: StereoCamera
-    left: np.ndarray
-    right: np.ndarray
-    path: np.ndarray
-    grasp: np.ndarray
-
-
-def read_ground_truth(bag: str | Path) -> list[GroundTruthFrame]:
-    """Frames of a simulator bag that carry every ground-truth topic and camera_info, in stamp order.
-
-    Raises OSError (``BagError``) for a missing or unreadable bag and ValueError for a
-    bag without ground truth or with unusable camera_info.
-    """
-    by_stamp: dict[int, dict[str, object]] = {}
-    for item in read_messages(bag, _GT_TOPICS):
-        by_stamp.setdefault(item.timestamp_ns, {})[item.topic] = item.message
-    frames = []
-    for stamp, messages in sorted(by_stamp.items()):
-        if not all(t in messages for t in _GT_TOPICS):
-            continue
-        try:
-            camera = StereoCamera.from_camera_info(
-                messages[topics.LEFT_CAMERA_INFO], messages[topics.RIGHT_CAMERA_INFO]
-            )
-        except CameraModelError as exc:
-            raise ValueError(f"{bag}: frame at {stamp} ns: {exc}") from None
-        frames.append(
-            GroundTruthFrame(
-                stamp,
-                str(messages[topics.GT_TOPOLOGY].data),  # type: ignore[attr-defined]
-                camera,
-                polygon_to_array(messages[topics.GT_LEFT_SEQUENCE])[:, :2],
-                polygon_to_array(messages[topics.GT_RIGHT_SEQUENCE])[:, :2],
-                path_to_array(messages[topics.GT_PATH]),
-                pose_to_arrays(messages[topics.GT_GRASP_POSE])[0],
-            )
-        )
-    if not frames:
-        raise ValueError(f"{bag} has no frame with ground-truth sequences, path, grasp pose and camera_info")
-    return frames
-
-
-def bag_paths(paths: Sequence[str | Path]) -> list[Path]:
-    """The bags in ``paths``: bags (folders with metadata.yaml, or .mcap files) or folders of bags."""
-    found: list[Path] = []
-    for name in paths:
-        path = Path(name)
-        if not path.exists():
-            raise FileNotFoundError(f"{path} does not exist")
-        if path.is_dir() and not (path / "metadata.yaml").exists() and not list(path.glob("*.mcap")):
-            found += sorted(p.parent for p in path.glob("*/metadata.yaml"))
-        else:
-            found.append(path)
-    if not found:
-        raise FileNotFoundError(f"no bags under {', '.join(map(str, paths))}")
-    return found
-
 
 @dataclass
 class FrameResult:
@@ -328,7 +251,7 @@ class FrameResult:
 
 
 def benchmark(
-    frames: Iterable[GroundTruthFrame],
+    frames: Iterable[Frame],
     seed: int = 0,
     noise_px: float = 0.3,
     params: ReconstructionParams | None = None,
@@ -338,8 +261,8 @@ def benchmark(
     results = []
     for index, frame in enumerate(frames):
         rng = np.random.default_rng([seed, index])
-        left = perturb_sequence(frame.left, rng, noise_px=noise_px)
-        right = perturb_sequence(frame.right, rng, noise_px=noise_px)
+        left = perturb_sequence(frame.true_left_sequence[:, :2], rng, noise_px=noise_px)
+        right = perturb_sequence(frame.true_right_sequence[:, :2], rng, noise_px=noise_px)
         start = time.perf_counter()
         try:
             result = reconstruct(left, right, frame.camera, params)
@@ -350,7 +273,7 @@ def benchmark(
             )
             continue
         wall = 1000 * (time.perf_counter() - start)
-        score = score_reconstruction(result.path, frame.path, result.grasp_position, frame.grasp)
+        score = score_reconstruction(result.path, frame.true_path, result.grasp_position, frame.true_grasp)
         results.append(
             FrameResult(frame.topology, frame.stamp_ns, score, None, wall, dict(result.timings_ms))
         )
@@ -471,7 +394,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     note, previous = _pin_to_one_core(args.core)
     try:
         params = ReconstructionParams().replace(**dict(_override(item) for item in args.set))
-        frames = [frame for bag in bag_paths(args.bags) for frame in read_ground_truth(bag)]
+        frames = [frame for bag in find_bags(args.bags) for frame in read_frames(bag, images=False)]
+        if not frames:
+            raise ValueError(f"no frame with ground-truth sequences, path and grasp pose in {args.bags}")
         benchmark(frames[:1], args.seed, args.noise, params)  # warm-up: caches and lazy imports
         results = benchmark(frames, args.seed, args.noise, params)
         print(format_report(results, args.noise))
