@@ -9,7 +9,12 @@ both call. Steps (paper Section II.B end and II.C):
    than ``max_jump_px`` is a jump over a hidden stretch, not observed thread;
 2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
    the disparity limits of the working depth range, and disparity
-   regularisation along the thread (:mod:`suture_reconstruction.pairing`);
+   regularisation along the thread (:mod:`suture_reconstruction.pairing`).
+   The depth must follow precise pairs closely: where the thread is lifted
+   over the other strand 1 px of disparity is about 3 mm of depth, and a
+   flattened lift is arc length missing before the grasp point, which moves
+   the grasp along the thread by as much (the grasp errors of 3-4 mm on the
+   ground-truth sequences of issue 5 had that cause, not a local error);
 3. triangulation of every left sample with a supported disparity
    (``StereoCamera.triangulate``): the dense vertices ``points``;
 4. resampling of the vertices every ``vertex_step`` along each unbroken run and
@@ -55,9 +60,10 @@ class ReconstructionParams:
     ``smoothing_window`` (Savitzky-Golay samples), ``max_jump_px`` (a longer step
     is a jump over a hidden stretch). Pairing: ``pairing``
     (:class:`~suture_reconstruction.pairing.PairingParams`: depth range, angles,
-    bands, end pairs), ``disparity_bandwidth_px`` (smoothing length of the
-    disparity along the thread where the pairs are well conditioned),
-    ``max_disparity_gap_px`` (extrapolation beyond the first/last pair),
+    bands, end pairs), ``disparity``
+    (:class:`~suture_reconstruction.pairing.DisparitySmoothing`: the adaptive
+    smoothing of the disparity along the thread, its ladder of smoothing
+    lengths, outlier rejection and extrapolation beyond the first/last pair),
     ``min_pairs`` (fewer pairs: NoStereoOverlapError). Shape: ``vertex_step`` (m
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,

@@ -24,7 +24,6 @@ per reason and ``log_throttle`` seconds, and the node serves the next one.
 from __future__ import annotations
 
 import sys
-import time
 from typing import Any
 
 import numpy as np
@@ -44,7 +43,7 @@ from suture_common.messages import (
     polygon_to_array,
     pose_message,
 )
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, run_node, to_rclpy
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_rclpy
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     GRASP_POSE,
@@ -107,16 +106,15 @@ class ReconstructionNode(Node):
         values = {name: self.get_parameter(name).value for name in _CORE_PARAMETERS}
         self.params = ReconstructionParams().replace(**values)  # ValueError on bad values
         self.frame_id = str(self.get_parameter("frame_id").value)
-        self._throttle = float(self.get_parameter("log_throttle").value)
         self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(
             int(self.get_parameter("buffer_size").value)
         )
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
-        self._last_warning: dict[str, float] = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), float(self.get_parameter("log_throttle").value))
         self.frames = 0
         """Stereo pairs reconstructed and published."""
-        self.dropped: dict[str, int] = {}
+        self.dropped: dict[str, int] = self._warnings.counts
         """Stereo pairs dropped, by reason."""
 
         self._points = self.create_publisher(PointCloud2, POINTS, RELIABLE_QOS)
@@ -196,11 +194,7 @@ class ReconstructionNode(Node):
         self._markers.publish(markers(result.path, result.grasp_position, path.header))
 
     def _drop(self, reason: str, text: str) -> None:
-        self.dropped[reason] = self.dropped.get(reason, 0) + 1
-        now = time.monotonic()
-        if now - self._last_warning.get(reason, -np.inf) >= self._throttle:
-            self._last_warning[reason] = now
-            self.get_logger().warning(text)
+        self._warnings.warn(reason, text)
 
 
 def point_cloud(points: np.ndarray, header: Header) -> PointCloud2:

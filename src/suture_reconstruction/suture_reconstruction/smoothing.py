@@ -55,7 +55,10 @@ def savgol(values: np.ndarray, window: int, order: int = 2, deriv: int = 0) -> n
 
 
 def whittaker(values: np.ndarray, weights: np.ndarray, lam: float) -> np.ndarray:
-    """Whittaker smoother of (n,) or (n, k) ``values`` with (n,) ``weights`` >= 0 (module docstring)."""
+    """Whittaker smoother of (n,) or (n, k) ``values`` with (n,) ``weights`` >= 0 (module docstring).
+
+    Inputs must be finite (they are not checked again: the disparity regulariser
+    calls this a dozen times per frame)."""
     values = np.asarray(values, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
     n = len(w)
@@ -77,4 +80,4 @@ def whittaker(values: np.ndarray, weights: np.ndarray, lam: float) -> np.ndarray
     bands[0, 2:] = lam
     bands[1, 1:] = lam * first
     bands[2] = lam * main + w + ridge
-    return solveh_banded(bands, rhs + ridge * mean)
+    return solveh_banded(bands, rhs + ridge * mean, check_finite=False)

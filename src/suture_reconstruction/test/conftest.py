@@ -45,8 +45,13 @@ def planar_thread(kind: str, rng: np.random.Generator) -> np.ndarray:
     """A dense (every 0.05 mm) 3D centreline (m) in the left optical frame, about 90 mm from the camera.
 
     kinds: 'curved' (an S bend), 'loop' (crosses itself, the later strand lifted 1 mm over
-    the earlier one), 'rows' (a straight thread 1 degree off the image rows), 'short' (20 mm).
+    the earlier one), 'rows' (a straight thread 1 degree off the image rows), 'short' (20 mm),
+    'lifted' and 'lifted_steep' (a thread 5 or 30 degrees off the image rows, lifted 6 mm towards
+    the camera over about 12 mm of its length, 25 mm from the tip, as over the other strand of a
+    crossing).
     """
+    if kind.startswith("lifted"):
+        return lifted_thread(5.0 if kind == "lifted" else 30.0)
     step = 5e-5
     length = {"short": 0.02}.get(kind, 0.09)
     s = np.arange(0.0, length, step)
@@ -68,6 +73,19 @@ def planar_thread(kind: str, rng: np.random.Generator) -> np.ndarray:
         i, j = np.unravel_index(np.argmin(np.where(far, gaps, np.inf)), gaps.shape)
         later = max(i, j) * 20
         z = z - 0.001 * np.exp(-0.5 * ((s - s[later]) / 0.003) ** 2)
+    return np.column_stack([xy, z])
+
+
+def lifted_thread(heading_deg: float, lift: float = 0.006, width: float = 0.003) -> np.ndarray:
+    """A gently bent 90 mm thread ``heading_deg`` off the image rows, lifted by ``lift`` (m; a
+    Gaussian of ``width`` m, 25 mm from the tip): 6 mm over 3 mm is a slope of 1.2, so the depth
+    excursion is most of the arc length there (dense, every 0.05 mm, in metres)."""
+    step = 5e-5
+    s = np.arange(0.0, 0.09, step)
+    heading = np.radians(heading_deg) + 0.05 * np.sin(2 * np.pi * s / 0.09)
+    xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * step, axis=0)
+    xy -= xy.mean(axis=0)
+    z = 0.095 + 0.1 * xy[:, 0] - lift * np.exp(-0.5 * ((s - 0.025) / width) ** 2)
     return np.column_stack([xy, z])
 
 

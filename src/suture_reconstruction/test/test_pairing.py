@@ -114,6 +114,34 @@ def test_regularisation_rejects_outliers_and_keeps_a_sharp_bump():
     assert result.bandwidth[200] < result.bandwidth[100]  # by smoothing less there
 
 
+@pytest.mark.parametrize("weak", [False, True])
+def test_regularisation_follows_exact_pairs_over_a_lifted_stretch(weak):
+    """Exact pairs of a 2.5 px disparity bump (a thread lifted over a crossing), on a steep
+    stretch or one 5 degrees off the rows (weight 0.008): all kept, and followed to 0.2 px."""
+    n = 300
+    x = np.arange(n, dtype=float)
+    truth = 27 + 0.003 * x + 2.5 * np.exp(-0.5 * ((x - 150) / (15 if weak else 12)) ** 2)
+    weight = np.ones(n)
+    if weak:
+        weight[100:200] = np.sin(np.radians(5)) ** 2
+    result = regularise_disparity(n, np.arange(n), truth, weight, DisparitySmoothing())
+    assert result.inlier.all()
+    assert np.abs(result.value - truth).max() < 0.2
+
+
+def test_regularised_disparity_has_no_steps_between_scales():
+    """Neighbouring samples that pick different smoothing lengths must not step the disparity
+    (0.1 px is 0.4 mm of depth: a saw-tooth along the thread)."""
+    n = 300
+    x = np.arange(n, dtype=float)
+    truth = 27 + 2.5 * np.exp(-0.5 * ((x - 150) / 12) ** 2)  # |second difference| <= 0.018 px
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        measured = truth + rng.normal(0, 0.2, n)
+        result = regularise_disparity(n, np.arange(n), measured, np.ones(n), DisparitySmoothing())
+        assert np.abs(np.diff(result.value, 2)).max() < 0.04
+
+
 def test_extrapolation_is_limited():
     rows = np.arange(100, 200)
     result = regularise_disparity(
