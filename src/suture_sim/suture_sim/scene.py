@@ -47,6 +47,11 @@ THREAD_COLOURS = {
     "undyed": (0.60, 0.45, 0.25),
 }
 
+#: A thread colour is used on a background only if one linear-RGB channel of the two differs by
+#: at least this factor (against the background's median albedo): a thread that no annotator
+#: could see (white on a pale phantom) must not be in the ground-truth mask.
+MIN_COLOUR_CONTRAST = 2.0
+
 MIN_DEPTH, MAX_DEPTH = 0.050, 0.150
 MIN_LENGTH, MAX_LENGTH = 0.060, 0.150
 MIN_DIAMETER, MAX_DIAMETER = 0.0002, 0.0006
@@ -214,7 +219,7 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
     if not _inside(camera, target, BORDER_PX):
         raise geometry.ShapeError("target leaves a view")
 
-    colours = rng.choice(list(THREAD_COLOURS), size=len(threads))
+    colours = rng.choice(contrasting_colours(texture.albedo), size=len(threads))
     tubes = [
         Tube(
             axis=target if k == 0 else thread,
@@ -230,6 +235,21 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
     if topology == "occluded":
         tubes += _instrument(target, camera, rng)
     return _Scene(surface, tubes, target, radius)
+
+
+def contrasting_colours(albedo: np.ndarray) -> list[str]:
+    """Names of the thread colours visible on a background of (S, S, 3) linear-RGB ``albedo``.
+
+    Visible means: in some channel the thread's albedo and the background's median albedo
+    differ by at least :data:`MIN_COLOUR_CONTRAST` times.
+    """
+    background = np.median(albedo.reshape(-1, 3), axis=0)
+    names = []
+    for name, colour in THREAD_COLOURS.items():
+        ratio = np.log(np.maximum(colour, 1e-3) / np.maximum(background, 1e-3))
+        if np.max(np.abs(ratio)) >= np.log(MIN_COLOUR_CONTRAST):
+            names.append(name)
+    return names
 
 
 def _place(curve: np.ndarray, camera: StereoCamera, rng: np.random.Generator) -> tuple[float, np.ndarray]:
