@@ -3,7 +3,8 @@
 This is the only module of ``suture_common`` that imports rclpy; everything else
 stays ROS-free. Messages built by :mod:`suture_common.messages` (rosbags
 dataclasses) become rclpy messages through their CDR bytes (:func:`to_rclpy`),
-which is also how bag messages are replayed (:func:`from_cdr`).
+which is also how bag messages are replayed (:func:`from_cdr`). :class:`ThrottledWarnings`
+is the nodes' one way of reporting dropped input (DESIGN.md, "Bad input").
 """
 
 from __future__ import annotations
@@ -85,6 +86,39 @@ def spin_until(executor: Executor, predicate: Callable[[], bool], timeout_s: flo
             return bool(predicate())
         executor.spin_once(timeout_sec=min(0.05, remaining))
     return True
+
+
+class ThrottledWarnings:
+    """Per-reason throttled warnings of a node: what it logs when it drops an input.
+
+    :meth:`warn` logs the first warning of a reason at once and then at most one every
+    ``period_s`` seconds (monotonic clock), so a stream of identical bad frames gives one
+    line per period while a new problem is reported immediately. Every call is counted in
+    :attr:`counts`, logged or not. ``logger`` is anything with a ``warning(str)`` method,
+    e.g. ``node.get_logger()``.
+    """
+
+    def __init__(self, logger: Any, period_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.logger = logger
+        self.period_s = float(period_s)
+        self._clock = clock
+        self._last: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+        """Calls of :meth:`warn` by reason (the inputs dropped for that reason)."""
+
+    def warn(self, reason: str, text: str) -> bool:
+        """Count ``reason`` and log ``text`` unless ``reason`` was logged within the period.
+
+        Returns whether the line was logged.
+        """
+        self.counts[reason] = self.counts.get(reason, 0) + 1
+        now = self._clock()
+        last = self._last.get(reason)
+        if last is not None and now - last < self.period_s:
+            return False
+        self._last[reason] = now
+        self.logger.warning(text)
+        return True
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:

@@ -27,6 +27,7 @@ from suture_common.messages import TYPESTORE, camera_info_message, image_message
 from suture_common.ros import (
     RELIABLE_QOS,
     SENSOR_DATA_QOS,
+    ThrottledWarnings,
     from_cdr,
     message_class,
     spin_until,
@@ -252,6 +253,28 @@ def test_qos_profiles():
     assert SENSOR_DATA_QOS.reliability == ReliabilityPolicy.BEST_EFFORT
     assert RELIABLE_QOS.reliability == ReliabilityPolicy.RELIABLE
     assert RELIABLE_QOS.depth == 10 and RELIABLE_QOS.history == HistoryPolicy.KEEP_LAST
+
+
+def test_throttled_warnings_log_each_reason_once_per_period():
+    class Logger:
+        def __init__(self) -> None:
+            self.lines: list[str] = []
+
+        def warning(self, text: str) -> None:
+            self.lines.append(text)
+
+    now = [100.0]
+    logger = Logger()
+    warnings = ThrottledWarnings(logger, 2.0, clock=lambda: now[0])
+    assert warnings.warn("encoding", "bad encoding 1")
+    assert not warnings.warn("encoding", "bad encoding 2")  # same reason within the period
+    assert warnings.warn("size", "size mismatch")  # a new reason is logged at once
+    now[0] += 1.9
+    assert not warnings.warn("encoding", "bad encoding 3")
+    now[0] += 0.1
+    assert warnings.warn("encoding", "bad encoding 4")
+    assert logger.lines == ["bad encoding 1", "size mismatch", "bad encoding 4"]
+    assert warnings.counts == {"encoding": 4, "size": 1}
 
 
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-import time
 from typing import Any
 
 import numpy as np
@@ -33,7 +32,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.messages import MessageConversionError, image_to_array, ns_from_stamp, polygon_message
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, run_node, to_rclpy
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_rclpy
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     LEFT_CAMERA_INFO,
@@ -102,7 +101,9 @@ class OrderingNode(Node):
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: StereoCamera | None = None
         self._hint: PointStamped | None = None
-        self._last_warning: dict[str, float] = {}
+        self._warnings = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)
+        self.dropped: dict[str, int] = self._warnings.counts
+        """Mask pairs dropped, by problem."""
         self.frames_published = 0
         self._left_pub = self.create_publisher(PolygonStamped, LEFT_SEQUENCE, RELIABLE_QOS)
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
@@ -117,13 +118,6 @@ class OrderingNode(Node):
         )
 
     # ------------------------------------------------------------------ callbacks
-
-    def _warn(self, problem: str, message: str) -> None:
-        """One warning per ``problem`` every WARN_PERIOD_S seconds."""
-        now = time.monotonic()
-        if now - self._last_warning.get(problem, -np.inf) >= WARN_PERIOD_S:
-            self._last_warning[problem] = now
-            self.get_logger().warning(message)
 
     def _on_camera_info(self, side: str, message: CameraInfo) -> None:
         self._camera_info[side] = message
@@ -145,7 +139,7 @@ class OrderingNode(Node):
         if self._camera is None:
             missing = [side for side in ("left", "right") if side not in self._camera_info]
             if missing:
-                self._warn(
+                self._warnings.warn(
                     "camera_info",
                     f"dropped masks: no {' or '.join(missing)} camera_info received yet "
                     f"({LEFT_CAMERA_INFO}, {RIGHT_CAMERA_INFO})",
@@ -156,7 +150,7 @@ class OrderingNode(Node):
                     self._camera_info["left"], self._camera_info["right"]
                 )
             except CameraModelError as exc:
-                self._warn("camera_info", f"dropped masks: unusable camera_info: {exc}")
+                self._warnings.warn("camera_info", f"dropped masks: unusable camera_info: {exc}")
                 return None
         return self._camera
 
@@ -179,12 +173,12 @@ class OrderingNode(Node):
             left_mask = image_to_array(left, expect="mono8")
             right_mask = image_to_array(right, expect="mono8")
         except MessageConversionError as exc:
-            self._warn("mask", f"dropped masks at {stamp_ns} ns: {exc}")
+            self._warnings.warn("mask", f"dropped masks at {stamp_ns} ns: {exc}")
             return
         try:
             result = order_stereo(left_mask, right_mask, self._tip_hint(stamp_ns), camera, self.params)
         except OrderingError as exc:
-            self._warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
+            self._warnings.warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
             return
         for publisher, points, header in (
             (self._left_pub, result.left, left.header),

@@ -162,4 +162,4 @@ def test_node_drops_bad_input_and_keeps_serving(ros, caplog):
     assert all(received.values()), "the node stopped serving after bad input"
     stamp = received[topics.LEFT_SEQUENCE][0].header.stamp
     assert stamp.sec * 10**9 + stamp.nanosec == good
-    assert len(node._last_warning) >= 4  # each problem was reported (throttled, once per kind)
+    assert len(node.dropped) >= 4  # each problem was reported (throttled, once per kind)
