@@ -8,12 +8,14 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    # The shipped M-oST and M-ToSOT checkpoints (README, "Segmentation").
+    package_data={package_name: ["weights/*.pt"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
     install_requires=["setuptools"],
-    zip_safe=True,
+    zip_safe=False,
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
     description=(
@@ -21,6 +23,9 @@ setup(
     ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": [],
+        "console_scripts": [
+            "suture-seg = suture_segmentation.cli:main",
+            "segmentation_node = suture_segmentation.segmentation_node:main",
+        ],
     },
 )

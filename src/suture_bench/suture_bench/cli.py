@@ -77,13 +77,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--masks", choices=SOURCES, default="predicted")
     parser.add_argument("--sequences", choices=SOURCES, default="predicted")
     parser.add_argument("--json", metavar="FILE", help="also write the JSON summary here")
+    parser.add_argument(
+        "--seg-weights",
+        metavar="WEIGHTS",
+        help="segmentation model for --masks predicted: m_tosot (default, on-site), m_ost (legacy) or a .pt",
+    )
     args = parser.parse_args(argv)
     try:
-        summary = evaluate(args.paths, masks=args.masks, sequences=args.sequences)
+        summary = evaluate(
+            args.paths, masks=args.masks, sequences=args.sequences, seg_weights=args.seg_weights
+        )
         if args.json:
             with open(args.json, "w") as stream:
                 json.dump({k: v for k, v in summary.items() if k != "per_frame"}, stream, indent=2)
-    except (EvaluationError, OSError, ValueError) as error:
+    except (EvaluationError, OSError, ValueError, RuntimeError) as error:
         print(f"suture-eval: error: {error}", file=sys.stderr)
         return 1
     print(render_table(summary))

@@ -59,11 +59,24 @@ class _Tally:
             self.notes.append(text)
 
 
-def evaluate(paths: Iterable[str | Path], masks: str = "predicted", sequences: str = "predicted") -> dict:
-    """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict)."""
+def evaluate(
+    paths: Iterable[str | Path],
+    masks: str = "predicted",
+    sequences: str = "predicted",
+    seg_weights: str | None = None,
+) -> dict:
+    """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
+
+    ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
+    a shipped name, ``m_tosot`` or ``m_ost``); None is the stage's default (shipped M-ToSOT).
+    """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
     stages = _Stages(masks, sequences)
+    if stages.segment is not None and seg_weights is not None:
+        from suture_segmentation.core import Segmenter
+
+        stages.segment = Segmenter(seg_weights).segment_pair
     tally = _Tally()
     for bag in find_bags(paths):
         try:

@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Regenerate the segmentation data, the three models of the paper's Table I and the report.
+#
+#   bash ros2_ws/train_segmentation.sh [OUT]      (default OUT: out/segmentation)
+#
+# 1. simulated data (suture-sim --png-dir): 600 legacy training images, 20 legacy validation
+#    images, 40 on-site fine-tuning images, and the two on-site test sets of 40 images each
+#    (Set 1: phantom backgrounds, Set 2: printed surgical scenes), all with different seeds;
+# 2. M-oST: every layer trained on the legacy images;
+#    M-TOT: every layer trained on the 40 on-site images only;
+#    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen;
+# 3. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
+#
+# On 2 CPU cores this takes about 30-40 minutes; with DEVICE=cuda a few minutes.
+# The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt
+# and OUT/m_tosot/best.pt of this script.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash ros2_ws/setup.sh >/dev/null
+OUT=${1:-out/segmentation}
+DEVICE=${DEVICE:-cpu}
+BIN=.venv/bin
+DATA=$OUT/data
+
+simulate() {  # name seed frames domain [background]
+    local name=$1 seed=$2 frames=$3 domain=$4 background=${5:-}
+    [ -d "$DATA/$name/masks" ] && return
+    "$BIN/suture-sim" --topology mixed --frames "$frames" --domain "$domain" --seed "$seed" \
+        ${background:+--background "$background"} --png-dir "$DATA/$name" --quiet
+}
+simulate legacy_train 3001 300 legacy
+simulate legacy_val 3002 10 legacy
+simulate onsite_train 3101 20 on-site
+simulate onsite_set1 3201 20 on-site phantom
+simulate onsite_set2 3301 20 on-site printed
+
+"$BIN/suture-seg" train --images "$DATA/legacy_train/images" --masks "$DATA/legacy_train/masks" \
+    --val-images "$DATA/legacy_val/images" --val-masks "$DATA/legacy_val/masks" \
+    --epochs 24 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_ost"
+"$BIN/suture-seg" train --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
+    --epochs 10 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tot"
+"$BIN/suture-seg" finetune --weights "$OUT/m_ost/best.pt" \
+    --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
+    --epochs 10 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tosot"
+
+"$BIN/suture-seg" evaluate \
+    --weights "M-oST=$OUT/m_ost/best.pt,M-TOT=$OUT/m_tot/best.pt,M-ToSOT=$OUT/m_tosot/best.pt" \
+    --images "$DATA/onsite_set1/images" --masks "$DATA/onsite_set1/masks" \
+    --images "$DATA/onsite_set2/images" --masks "$DATA/onsite_set2/masks" \
+    --report "$OUT/report"

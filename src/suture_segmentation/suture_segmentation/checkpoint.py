@@ -1,0 +1,108 @@
+"""Checkpoint files (.pt) and ONNX export of :class:`~suture_segmentation.model.SutureUNet`.
+
+A checkpoint is a ``torch.save`` dict loaded with ``weights_only=True`` (no pickled code)::
+
+    {"format": "suture-unet/1", "widths": [8, 16, 32, 48, 64],
+     "state_dict": {...}, "meta": {"command": "...", "seed": 0, "epochs": ..., ...}}
+
+ONNX models take ``image`` (B, 3, H, W) float32 RGB in [0, 1] (H, W multiples of 16) and give
+``logits`` (B, 2, H, W); batch, height and width are dynamic axes.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from suture_segmentation.model import SutureUNet
+
+FORMAT = "suture-unet/1"
+#: The weights shipped with the package (see the README for the commands that made them).
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+SHIPPED = {"m_ost": WEIGHTS_DIR / "m_ost.pt", "m_tosot": WEIGHTS_DIR / "m_tosot.pt"}
+DEFAULT_WEIGHTS = SHIPPED["m_tosot"]
+ONNX_OPSET = 17
+
+
+class WeightsError(RuntimeError):
+    """A weights file is missing, unreadable, corrupt or not a suture U-Net."""
+
+
+def resolve_weights(weights: str | Path | None) -> Path:
+    """Path of ``weights``: None is the shipped M-ToSOT, 'm_ost'/'m_tosot' name a shipped model."""
+    if weights is None or str(weights) == "":
+        return DEFAULT_WEIGHTS
+    if str(weights) in SHIPPED:
+        return SHIPPED[str(weights)]
+    return Path(weights).expanduser()
+
+
+def save_checkpoint(model: SutureUNet, path: str | Path, meta: dict[str, Any] | None = None) -> Path:
+    """Write ``model`` to ``path`` (parent folders created); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    torch.save(
+        {"format": FORMAT, "widths": list(model.widths), "state_dict": state, "meta": meta or {}}, path
+    )
+    return path
+
+
+def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[SutureUNet, dict[str, Any]]:
+    """The model (in eval mode, on ``device``) and its metadata from a checkpoint file.
+
+    Raises:
+        WeightsError: missing file, not a torch file, wrong format or mismatching tensors.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise WeightsError(f"weights file {path} does not exist")
+    try:
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises several types for corrupt files
+        raise WeightsError(
+            f"weights file {path} is not a readable checkpoint ({error.__class__.__name__})"
+        ) from error
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise WeightsError(f"{path} is not a suture U-Net checkpoint (expected format {FORMAT!r})")
+    try:
+        model = SutureUNet(blob["widths"])
+        model.load_state_dict(blob["state_dict"])
+    except (KeyError, RuntimeError, ValueError, TypeError) as error:
+        raise WeightsError(f"{path}: tensors do not match a suture U-Net ({error})") from error
+    return model.to(device).eval(), dict(blob.get("meta", {}))
+
+
+def onnx_bytes(model: SutureUNet) -> bytes:
+    """The model as an ONNX protobuf (dynamic batch, height and width), see the module docstring."""
+    model = model.to("cpu").eval()
+    buffer = io.BytesIO()
+    example = torch.zeros(1, 3, 64, 64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the TorchScript-based exporter announces its deprecation
+        torch.onnx.export(
+            model,
+            (example,),
+            buffer,
+            input_names=["image"],
+            output_names=["logits"],
+            dynamic_axes={
+                "image": {0: "batch", 2: "height", 3: "width"},
+                "logits": {0: "batch", 2: "height", 3: "width"},
+            },
+            opset_version=ONNX_OPSET,
+            dynamo=False,
+        )
+    return buffer.getvalue()
+
+
+def export_onnx(model: SutureUNet, path: str | Path) -> Path:
+    """Write the ONNX model to ``path``; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(onnx_bytes(model))
+    return path

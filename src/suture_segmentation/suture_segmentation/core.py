@@ -1,0 +1,179 @@
+"""Inference: suture masks from camera images, with a PyTorch or an ONNX Runtime backend.
+
+This is the ROS-free entry point that ``segmentation_node`` and ``suture-eval`` both call.
+
+* :class:`Segmenter` holds one loaded model; :meth:`Segmenter.segment_pair` runs a stereo pair
+  as one batch of two.
+* :func:`segment_stereo` is the same with the shipped M-ToSOT weights on the CPU (ONNX Runtime),
+  loaded once per process.
+
+Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; masks are (H, W) uint8, 0 or 255. Both
+backends give the same masks up to pixels whose suture probability is within about 1e-4 of
+the threshold (float rounding differences between the two runtimes).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional
+
+from suture_segmentation.checkpoint import WeightsError, load_checkpoint, onnx_bytes, resolve_weights
+from suture_segmentation.model import STRIDE, SUTURE, pad_to_multiple
+
+BACKENDS = ("onnx", "torch")
+
+
+class SegmentationInputError(ValueError):
+    """An image cannot be segmented (wrong dtype or shape, empty, left/right sizes differ)."""
+
+
+class Segmenter:
+    """A loaded suture U-Net.
+
+    Args:
+        weights: a ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx``
+            file (``suture-seg export``; ONNX backend only), ``"m_ost"``/``"m_tosot"`` for a
+            shipped model, or None for the shipped M-ToSOT.
+        backend: ``"onnx"`` (ONNX Runtime) or ``"torch"``.
+        device: ``"cpu"`` or ``"cuda"`` (``"cuda:1"`` ...); ONNX on CUDA needs onnxruntime-gpu.
+        threshold: suture probability above which a pixel is suture, in (0, 1).
+        input_size: (width, height) to resize images to before inference (masks are resized
+            back), or None to run at the image's own size. Smaller is faster, thin threads suffer.
+        threads: CPU threads of the backend (None: the runtime's default).
+
+    Raises:
+        WeightsError: the weights cannot be loaded.
+        ValueError: unknown backend or device, threshold outside (0, 1), bad input size.
+    """
+
+    def __init__(
+        self,
+        weights: str | Path | None = None,
+        backend: str = "onnx",
+        device: str = "cpu",
+        threshold: float = 0.5,
+        input_size: tuple[int, int] | None = None,
+        threads: int | None = None,
+    ) -> None:
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown backend {backend!r}; choose {' or '.join(BACKENDS)}")
+        if not 0.0 < threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {threshold}")
+        if input_size is not None and (len(input_size) != 2 or min(input_size) < STRIDE):
+            raise ValueError(f"input_size must be (width, height) of at least {STRIDE} px, got {input_size}")
+        if not (device == "cpu" or device.startswith("cuda")):
+            raise ValueError(f"unknown device {device!r}; use cpu or cuda[:N]")
+        if device.startswith("cuda") and backend == "torch" and not torch.cuda.is_available():
+            raise ValueError("device cuda requested but torch sees no CUDA GPU")
+        self.backend, self.device, self.threshold = backend, device, float(threshold)
+        self.input_size = tuple(int(v) for v in input_size) if input_size is not None else None
+        self.weights = resolve_weights(weights)
+        self._lock = threading.Lock()
+        if backend == "torch":
+            if threads:
+                torch.set_num_threads(threads)
+            self._model, self.meta = load_checkpoint(self.weights, device)
+        else:
+            self._session = self._onnx_session(threads)
+
+    def _onnx_session(self, threads: int | None):  # -> onnxruntime.InferenceSession
+        import onnxruntime
+
+        if self.weights.suffix == ".onnx":
+            if not self.weights.is_file():
+                raise WeightsError(f"weights file {self.weights} does not exist")
+            model: bytes | str = str(self.weights)
+            self.meta = {}
+        else:
+            torch_model, self.meta = load_checkpoint(self.weights)
+            model = onnx_bytes(torch_model)
+        options = onnxruntime.SessionOptions()
+        if threads:
+            options.intra_op_num_threads = threads
+        providers = ["CPUExecutionProvider"]
+        if self.device.startswith("cuda"):
+            if "CUDAExecutionProvider" not in onnxruntime.get_available_providers():
+                raise ValueError("device cuda with the onnx backend needs onnxruntime-gpu")
+            index = int(self.device.split(":")[1]) if ":" in self.device else 0
+            providers = [("CUDAExecutionProvider", {"device_id": index}), "CPUExecutionProvider"]
+        try:
+            return onnxruntime.InferenceSession(model, options, providers=providers)
+        except Exception as error:  # onnxruntime raises its own Fail/InvalidProtobuf types
+            raise WeightsError(f"{self.weights} is not a loadable ONNX model ({error})") from error
+
+    def probabilities(self, images: list[np.ndarray]) -> np.ndarray:
+        """(B, H, W) float32 suture probability of equally sized images (one batch)."""
+        batch = _as_batch(images)
+        height, width = batch.shape[-2:]
+        if self.input_size is not None and (width, height) != self.input_size:
+            batch = functional.interpolate(
+                batch, size=self.input_size[::-1], mode="bilinear", align_corners=False
+            )
+        batch, (h, w) = pad_to_multiple(batch)
+        with self._lock:
+            if self.backend == "torch":
+                with torch.inference_mode():
+                    logits = self._model(batch.to(self.device)).float()
+                    suture = torch.softmax(logits, dim=1)[:, SUTURE, :h, :w].cpu()
+            else:
+                (logits,) = self._session.run(["logits"], {"image": batch.numpy()})
+                suture = torch.softmax(torch.from_numpy(logits), dim=1)[:, SUTURE, :h, :w]
+        if (w, h) != (width, height):
+            suture = functional.interpolate(suture[:, None], size=(height, width), mode="bilinear")[:, 0]
+        return suture.numpy()
+
+    def segment(self, images: list[np.ndarray]) -> list[np.ndarray]:
+        """(H, W) uint8 masks (0 or 255) of equally sized images, run as one batch."""
+        return [np.where(p > self.threshold, 255, 0).astype(np.uint8) for p in self.probabilities(images)]
+
+    def segment_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Masks of a stereo pair (one batch of two)."""
+        left_mask, right_mask = self.segment([left, right])
+        return left_mask, right_mask
+
+
+def _as_batch(images: list[np.ndarray]) -> torch.Tensor:
+    """(B, 3, H, W) float32 in [0, 1] from uint8 RGB or grey images; raises SegmentationInputError."""
+    if not images:
+        raise SegmentationInputError("no images to segment")
+    arrays = []
+    for k, image in enumerate(images):
+        image = np.asarray(image)
+        if image.dtype != np.uint8:
+            raise SegmentationInputError(f"image {k} has dtype {image.dtype}; expected uint8")
+        if image.ndim == 2:
+            image = np.repeat(image[..., None], 3, axis=2)
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise SegmentationInputError(
+                f"image {k} has shape {image.shape}; expected (H, W, 3) RGB or (H, W) grey"
+            )
+        if image.shape[0] == 0 or image.shape[1] == 0:
+            raise SegmentationInputError(f"image {k} has no pixels ({image.shape[1]}x{image.shape[0]})")
+        arrays.append(image)
+    if any(a.shape != arrays[0].shape for a in arrays):
+        sizes = ", ".join(f"{a.shape[1]}x{a.shape[0]}" for a in arrays)
+        raise SegmentationInputError(f"images of one batch must have one size, got {sizes}")
+    batch = torch.from_numpy(np.stack(arrays)).permute(0, 3, 1, 2)
+    return batch.float().div_(255.0).contiguous()
+
+
+_default: Segmenter | None = None
+_default_lock = threading.Lock()
+
+
+def default_segmenter() -> Segmenter:
+    """The process-wide segmenter with the shipped M-ToSOT weights (ONNX Runtime, CPU)."""
+    global _default
+    with _default_lock:
+        if _default is None:
+            _default = Segmenter()
+        return _default
+
+
+def segment_stereo(left_image: np.ndarray, right_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of a stereo pair with the shipped M-ToSOT model; see :class:`Segmenter`."""
+    return default_segmenter().segment_pair(left_image, right_image)

@@ -1,0 +1,153 @@
+"""Training data: PNG folders of images and masks, and random training crops from them.
+
+Folder format (what ``suture-sim --png-dir`` writes and what ``suture-seg finetune --images
+DIR --masks DIR`` reads from a user's own annotations)::
+
+    images/000012_left.png   the camera frame, 8-bit RGB (or grey) PNG/JPEG
+    masks/000012_left.png    same file name, same size, single channel 8-bit:
+                             0 = background, any value > 127 = suture
+
+An image without a mask of the same name (and the other way round) is an error, not skipped:
+a silently smaller training set is worse than a clear message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+
+class DatasetError(ValueError):
+    """A training/evaluation folder is missing, empty or inconsistent."""
+
+
+@dataclass
+class LabelledImages:
+    """Images and masks in memory.
+
+    Attributes:
+        names: file names, sorted.
+        images: list of (H, W, 3) uint8 RGB.
+        masks: list of (H, W) bool, True = suture.
+    """
+
+    names: list[str]
+    images: list[np.ndarray]
+    masks: list[np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def subset(self, indices: list[int] | np.ndarray) -> LabelledImages:
+        return LabelledImages(
+            [self.names[i] for i in indices],
+            [self.images[i] for i in indices],
+            [self.masks[i] for i in indices],
+        )
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB from an image file; raises DatasetError if it cannot be read."""
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise DatasetError(f"cannot read image {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def load_folder(images_dir: str | Path, masks_dir: str | Path, limit: int | None = None) -> LabelledImages:
+    """Read every image of ``images_dir`` with its mask of the same name in ``masks_dir``.
+
+    Args:
+        images_dir, masks_dir: folders in the format of the module docstring.
+        limit: read only the first ``limit`` images (sorted by name); None reads all.
+
+    Raises:
+        DatasetError: a folder is missing or empty, a mask is missing, unreadable or of another size.
+    """
+    images_dir, masks_dir = Path(images_dir), Path(masks_dir)
+    for folder in (images_dir, masks_dir):
+        if not folder.is_dir():
+            raise DatasetError(f"{folder} is not a folder")
+    paths = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not paths:
+        raise DatasetError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {images_dir}")
+    if limit is not None:
+        paths = paths[:limit]
+    names, images, masks = [], [], []
+    for path in paths:
+        candidates = [masks_dir / path.name, *(masks_dir / (path.stem + s) for s in IMAGE_SUFFIXES)]
+        mask_path = next((c for c in candidates if c.is_file()), None)
+        if mask_path is None:
+            raise DatasetError(f"no mask for {path.name} in {masks_dir} (masks share the image's file name)")
+        image = read_rgb(path)
+        mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise DatasetError(f"cannot read mask {mask_path}")
+        if mask.shape != image.shape[:2]:
+            raise DatasetError(
+                f"mask {mask_path} is {mask.shape[::-1]} but its image is {image.shape[1::-1]}"
+            )
+        names.append(path.name)
+        images.append(image)
+        masks.append(mask > 127)
+    return LabelledImages(names, images, masks)
+
+
+class CropSampler:
+    """Random square training crops, most of them on the thread, with flips and 90-degree turns.
+
+    Args:
+        data: the labelled images.
+        crop: crop side in pixels (a multiple of 16; images smaller than it are padded).
+        on_thread: fraction of crops centred on a random suture pixel (the rest are uniform,
+            so the background clutter is learnt too).
+        rng: random generator (seeded by the caller for reproducible training).
+    """
+
+    def __init__(self, data: LabelledImages, crop: int, on_thread: float, rng: np.random.Generator) -> None:
+        if len(data) == 0:
+            raise DatasetError("no training images")
+        self.data, self.crop, self.on_thread, self.rng = data, crop, on_thread, rng
+        self._suture_pixels = [np.flatnonzero(m) for m in data.masks]
+
+    def batch(self, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """(size, 3, crop, crop) float32 images in [0, 1] and (size, crop, crop) int64 labels."""
+        images = np.empty((size, 3, self.crop, self.crop), np.float32)
+        labels = np.empty((size, self.crop, self.crop), np.int64)
+        for k in range(size):
+            image, mask = self._one()
+            images[k] = image.transpose(2, 0, 1) / np.float32(255.0)
+            labels[k] = mask
+        return images, labels
+
+    def _one(self) -> tuple[np.ndarray, np.ndarray]:
+        i = int(self.rng.integers(len(self.data)))
+        image, mask = self.data.images[i], self.data.masks[i]
+        height, width = mask.shape
+        half = self.crop // 2
+        pixels = self._suture_pixels[i]
+        if pixels.size and self.rng.random() < self.on_thread:
+            centre = int(pixels[self.rng.integers(pixels.size)])
+            cy, cx = divmod(centre, width)
+            cy += int(self.rng.integers(-half // 2, half // 2 + 1))
+            cx += int(self.rng.integers(-half // 2, half // 2 + 1))
+        else:
+            cy, cx = int(self.rng.integers(height)), int(self.rng.integers(width))
+        top = int(np.clip(cy - half, 0, max(height - self.crop, 0)))
+        left = int(np.clip(cx - half, 0, max(width - self.crop, 0)))
+        image = image[top : top + self.crop, left : left + self.crop]
+        mask = mask[top : top + self.crop, left : left + self.crop]
+        if image.shape[:2] != (self.crop, self.crop):
+            pad = ((0, self.crop - image.shape[0]), (0, self.crop - image.shape[1]))
+            image = np.pad(image, (*pad, (0, 0)), mode="edge")
+            mask = np.pad(mask, pad)
+        turns = int(self.rng.integers(4))
+        image, mask = np.rot90(image, turns), np.rot90(mask, turns)
+        if self.rng.random() < 0.5:
+            image, mask = image[:, ::-1], mask[:, ::-1]
+        return image.astype(np.float32), mask.astype(np.int64)

@@ -1,0 +1,193 @@
+"""Training and fine-tuning loops (the paper's offline training and transfer, Section II.A).
+
+* :func:`train` fits every layer: M-oST on legacy synthetic images, M-TOT on the 40 on-site ones.
+* :func:`finetune` starts from a checkpoint, freezes the 13-layer feature extractor and fits the
+  rest: M-ToSOT.
+
+Both draw random crops (:class:`~suture_segmentation.data.CropSampler`), minimise the
+cross-entropy of the paper (``loss="ce"``) or cross-entropy plus soft Dice on the suture class
+(``loss="ce_dice"``), use Adam with a cosine learning-rate decay, log one JSON line of metrics
+per epoch (loss, and IoU/precision/recall/F1 on the validation images at full size), and keep
+the checkpoint of the last epoch and of the best validation IoU.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.nn import functional
+from tqdm import tqdm
+
+from suture_segmentation.checkpoint import load_checkpoint, save_checkpoint
+from suture_segmentation.data import CropSampler, LabelledImages
+from suture_segmentation.metrics import mean_scores, score_mask
+from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, pad_to_multiple
+
+LOSSES = ("ce", "ce_dice")
+
+
+@dataclass
+class TrainConfig:
+    """Hyper-parameters; every field is a CLI option of ``suture-seg train|finetune``.
+
+    Attributes:
+        epochs: number of epochs; one epoch is ``steps_per_epoch`` batches.
+        steps_per_epoch: batches per epoch.
+        batch_size: crops per batch.
+        crop: crop side in pixels (multiple of 16).
+        learning_rate: initial Adam learning rate (cosine decay to 5 % of it).
+        loss: "ce" (the paper) or "ce_dice".
+        on_thread: fraction of crops centred on the thread.
+        seed: seeds numpy and torch.
+        threads: torch CPU threads (None: the default).
+    """
+
+    epochs: int = 20
+    steps_per_epoch: int = 100
+    batch_size: int = 8
+    crop: int = 192
+    learning_rate: float = 3e-3
+    loss: str = "ce"
+    on_thread: float = 0.7
+    seed: int = 0
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; choose {' or '.join(LOSSES)}")
+        if self.crop % STRIDE or self.crop <= 0:
+            raise ValueError(f"crop must be a positive multiple of {STRIDE}, got {self.crop}")
+        if min(self.epochs, self.steps_per_epoch, self.batch_size) < 1:
+            raise ValueError("epochs, steps per epoch and batch size must be at least 1")
+
+
+def segmentation_loss(logits: torch.Tensor, labels: torch.Tensor, loss: str) -> torch.Tensor:
+    """Loss of (B, 2, H, W) logits against (B, H, W) int64 labels."""
+    value = functional.cross_entropy(logits, labels)
+    if loss == "ce_dice":
+        suture = torch.softmax(logits, dim=1)[:, SUTURE]
+        truth = (labels == SUTURE).float()
+        intersection = (suture * truth).sum(dim=(1, 2))
+        dice = (2 * intersection + 1.0) / (suture.sum(dim=(1, 2)) + truth.sum(dim=(1, 2)) + 1.0)
+        value = value + (1.0 - dice).mean()
+    return value
+
+
+@torch.inference_mode()
+def predict_probabilities(model: SutureUNet, image: np.ndarray, device: str = "cpu") -> np.ndarray:
+    """(H, W) float32 suture probability of one (H, W, 3) uint8 RGB image."""
+    was_training = model.training
+    model.eval()
+    batch = torch.from_numpy(image).permute(2, 0, 1)[None].float().div_(255.0)
+    batch, (height, width) = pad_to_multiple(batch)
+    probability = torch.softmax(model(batch.to(device)), dim=1)[0, SUTURE, :height, :width].cpu().numpy()
+    model.train(was_training)
+    return probability
+
+
+def evaluate_model(
+    model: SutureUNet, data: LabelledImages, threshold: float = 0.5, device: str = "cpu"
+) -> dict[str, float]:
+    """Mean IoU, precision, recall and F1 of ``model`` over ``data`` (full images)."""
+    scores = [
+        score_mask(predict_probabilities(model, image, device) > threshold, mask)
+        for image, mask in zip(data.images, data.masks, strict=True)
+    ]
+    return mean_scores(scores).as_dict()
+
+
+def train(
+    model: SutureUNet,
+    training: LabelledImages,
+    validation: LabelledImages,
+    config: TrainConfig,
+    out_dir: str | Path,
+    meta: dict[str, Any] | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Fit the trainable parameters of ``model``; writes ``last.pt``, ``best.pt`` and ``log.jsonl``.
+
+    Returns the log line of the best epoch (by validation IoU).
+    """
+    if config.threads:
+        torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    sampler = CropSampler(training, config.crop, config.on_thread, np.random.default_rng(config.seed))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    model.to(device).train()
+    parameters = model.trainable_parameters()
+    optimiser = torch.optim.Adam(parameters, lr=config.learning_rate)
+    total_steps = config.epochs * config.steps_per_epoch
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
+        optimiser, total_steps, eta_min=0.05 * config.learning_rate
+    )
+    meta = {**(meta or {}), "config": asdict(config), "training_images": len(training)}
+    best: dict[str, Any] = {"val_iou": -1.0}
+    log_path = out_dir / "log.jsonl"
+    log_path.write_text("")
+    started = time.monotonic()
+    for epoch in range(1, config.epochs + 1):
+        losses = []
+        bar = tqdm(
+            range(config.steps_per_epoch),
+            desc=f"epoch {epoch}/{config.epochs}",
+            disable=not progress,
+            leave=False,
+        )
+        for _ in bar:
+            images, labels = sampler.batch(config.batch_size)
+            logits = model(torch.from_numpy(images).to(device))
+            loss = segmentation_loss(logits, torch.from_numpy(labels).to(device), config.loss)
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            losses.append(loss.item())
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+        scores = evaluate_model(model, validation, device=device)
+        line = {
+            "epoch": epoch,
+            "loss": float(np.mean(losses)),
+            "lr": schedule.get_last_lr()[0],
+            **{f"val_{k}": v for k, v in scores.items()},
+            "elapsed_s": round(time.monotonic() - started, 1),
+        }
+        with log_path.open("a") as log:
+            log.write(json.dumps(line) + "\n")
+        if progress:
+            print(
+                f"epoch {epoch}/{config.epochs}  loss {line['loss']:.4f}  val IoU {scores['iou']:.3f}  "
+                f"precision {scores['precision']:.3f}  recall {scores['recall']:.3f}  F1 {scores['f1']:.3f}  "
+                f"({line['elapsed_s']:.0f} s)",
+                flush=True,
+            )
+        save_checkpoint(model, out_dir / "last.pt", {**meta, "epoch": epoch, **line})
+        if scores["iou"] > best["val_iou"]:
+            best = line
+            save_checkpoint(model, out_dir / "best.pt", {**meta, "epoch": epoch, **line})
+    return best
+
+
+def finetune(
+    checkpoint: str | Path,
+    training: LabelledImages,
+    validation: LabelledImages,
+    config: TrainConfig,
+    out_dir: str | Path,
+    meta: dict[str, Any] | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Transfer: load ``checkpoint``, freeze its feature extractor, train the rest (see :func:`train`)."""
+    model, source_meta = load_checkpoint(checkpoint, device)
+    model.freeze_feature_extractor()
+    meta = {**(meta or {}), "finetuned_from": str(checkpoint), "source": source_meta.get("command")}
+    return train(model, training, validation, config, out_dir, meta, device, progress)

@@ -1,0 +1,130 @@
+"""PNG folders, training crops, and inference: backends agree, bad input and bad weights are refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from suture_segmentation.checkpoint import WeightsError, export_onnx, load_checkpoint
+from suture_segmentation.core import SegmentationInputError, Segmenter
+from suture_segmentation.data import CropSampler, DatasetError, load_folder
+
+
+def test_folder_loads_images_with_their_masks(line_folder: Path) -> None:
+    data = load_folder(line_folder / "images", line_folder / "masks")
+    assert len(data) == 6 and data.names[0] == "000.png"
+    assert data.images[0].shape == (64, 96, 3) and data.images[0].dtype == np.uint8
+    assert data.masks[0].dtype == bool and data.masks[0].any()
+    # the dark line is where the mask says
+    assert data.images[0][data.masks[0]].mean() < data.images[0][~data.masks[0]].mean()
+
+
+def test_folder_errors_name_the_problem(line_folder: Path, tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match="is not a folder"):
+        load_folder(tmp_path / "nope", line_folder / "masks")
+    (line_folder / "masks" / "002.png").unlink()
+    with pytest.raises(DatasetError, match="no mask for 002.png"):
+        load_folder(line_folder / "images", line_folder / "masks")
+    cv2.imwrite(str(line_folder / "masks" / "002.png"), np.zeros((10, 10), np.uint8))
+    with pytest.raises(DatasetError, match="mask .*002.png is"):
+        load_folder(line_folder / "images", line_folder / "masks")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(DatasetError, match="no images"):
+        load_folder(empty, empty)
+
+
+def test_crops_keep_image_and_mask_aligned(line_folder: Path) -> None:
+    data = load_folder(line_folder / "images", line_folder / "masks")
+    sampler = CropSampler(data, crop=32, on_thread=1.0, rng=np.random.default_rng(0))
+    images, labels = sampler.batch(16)
+    assert images.shape == (16, 3, 32, 32) and labels.shape == (16, 32, 32)
+    assert images.dtype == np.float32 and images.min() >= 0.0 and images.max() <= 1.0
+    assert labels.any(axis=(1, 2)).all()  # on_thread=1: every crop sees the thread
+    # after flips and turns the label still marks the dark line pixels
+    red = images[:, 0]
+    assert red[labels == 1].mean() < 0.3 < red[labels == 0].mean()
+
+
+def test_crops_larger_than_the_image_are_padded(line_folder: Path) -> None:
+    data = load_folder(line_folder / "images", line_folder / "masks")
+    images, labels = CropSampler(data, crop=128, on_thread=0.5, rng=np.random.default_rng(1)).batch(2)
+    assert images.shape == (2, 3, 128, 128) and labels.shape == (2, 128, 128)
+
+
+@pytest.fixture()
+def pair() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    return (
+        rng.integers(0, 256, (50, 70, 3), dtype=np.uint8),
+        rng.integers(0, 256, (50, 70, 3), dtype=np.uint8),
+    )
+
+
+def test_onnx_and_torch_backends_give_the_same_masks(random_checkpoint: Path, pair, tmp_path: Path) -> None:
+    torch_segmenter = Segmenter(random_checkpoint, backend="torch")
+    onnx_segmenter = Segmenter(random_checkpoint, backend="onnx")
+    p_torch = torch_segmenter.probabilities(list(pair))
+    p_onnx = onnx_segmenter.probabilities(list(pair))
+    assert p_torch.shape == (2, 50, 70)
+    assert np.abs(p_torch - p_onnx).max() < 1e-4
+    threshold = float(np.median(p_torch))  # a threshold that splits the random-weights output
+    masks_torch = (p_torch > threshold).astype(np.uint8)
+    masks_onnx = (p_onnx > threshold).astype(np.uint8)
+    near = np.abs(p_torch - threshold) < 1e-4
+    assert np.array_equal(masks_torch[~near], masks_onnx[~near])
+    # an exported .onnx file is accepted as weights too
+    onnx_file = export_onnx(load_checkpoint(random_checkpoint)[0], tmp_path / "model.onnx")
+    assert np.abs(Segmenter(onnx_file).probabilities(list(pair)) - p_onnx).max() < 1e-5
+
+
+def test_masks_are_mono8_of_the_input_size(random_checkpoint: Path, pair) -> None:
+    left, right = Segmenter(random_checkpoint, backend="torch").segment_pair(*pair)
+    for mask in (left, right):
+        assert mask.shape == (50, 70) and mask.dtype == np.uint8
+        assert set(np.unique(mask)) <= {0, 255}
+    grey = Segmenter(random_checkpoint, backend="torch", input_size=(32, 32)).segment([pair[0][..., 0]])
+    assert grey[0].shape == (50, 70)
+
+
+@pytest.mark.parametrize(
+    ("images", "message"),
+    [
+        ([np.zeros((10, 10, 3), np.float32)], "dtype float32"),
+        ([np.zeros((10, 10, 4), np.uint8)], "shape"),
+        ([np.zeros((0, 0, 3), np.uint8)], "no pixels"),
+        ([np.zeros((10, 10, 3), np.uint8), np.zeros((12, 10, 3), np.uint8)], "one size"),
+        ([], "no images"),
+    ],
+)
+def test_bad_images_raise_a_specific_error(random_checkpoint: Path, images, message: str) -> None:
+    with pytest.raises(SegmentationInputError, match=message):
+        Segmenter(random_checkpoint, backend="torch").segment(images)
+
+
+def test_missing_or_corrupt_weights_raise_weights_error(tmp_path: Path) -> None:
+    with pytest.raises(WeightsError, match="does not exist"):
+        Segmenter(tmp_path / "missing.pt")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"\x00garbage" * 100)
+    for backend in ("torch", "onnx"):
+        with pytest.raises(WeightsError, match="not a readable checkpoint"):
+            Segmenter(corrupt, backend=backend)
+    bad_onnx = tmp_path / "bad.onnx"
+    bad_onnx.write_bytes(b"not onnx")
+    with pytest.raises(WeightsError, match="not a loadable ONNX model"):
+        Segmenter(bad_onnx)
+
+
+def test_bad_options_are_refused(random_checkpoint: Path) -> None:
+    with pytest.raises(ValueError, match="unknown backend"):
+        Segmenter(random_checkpoint, backend="tensorrt")
+    with pytest.raises(ValueError, match="threshold"):
+        Segmenter(random_checkpoint, threshold=1.5)
+    with pytest.raises(ValueError, match="input_size"):
+        Segmenter(random_checkpoint, input_size=(8, 8))
+    with pytest.raises(ValueError, match="unknown device"):
+        Segmenter(random_checkpoint, device="tpu")

@@ -1,0 +1,49 @@
+"""The shipped checkpoints: small, made by the recorded command, and M-ToSOT wins on the on-site domain.
+
+The on-site frames here are fresh simulator frames (seed 4242, not the training or test seeds of
+``ros2_ws/train_segmentation.sh``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suture_common.camera import StereoCamera
+from suture_segmentation.checkpoint import SHIPPED, load_checkpoint
+from suture_segmentation.core import Segmenter
+from suture_segmentation.metrics import mean_scores, score_mask
+from suture_sim.scene import SimConfig, generate_frame
+
+#: Mean IoU the shipped M-ToSOT must reach on the fresh on-site frames (measured: see README).
+MIN_TOSOT_IOU = 0.35
+
+
+@pytest.mark.parametrize("name", ["m_ost", "m_tosot"])
+def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
+    path = SHIPPED[name]
+    assert path.stat().st_size < 2_000_000
+    _, meta = load_checkpoint(path)
+    expected = "suture-seg finetune" if name == "m_tosot" else "suture-seg train"
+    assert meta["command"].startswith(expected) and meta["config"]["seed"] == 0
+
+
+@pytest.fixture(scope="module")
+def onsite_frames() -> list:
+    config = SimConfig(topology="mixed", domain="on-site", camera=StereoCamera.default(640, 480), seed=4242)
+    return [generate_frame(config, index) for index in range(3)]
+
+
+def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) -> None:
+    scores = {}
+    for name in ("m_ost", "m_tosot"):
+        segmenter = Segmenter(name, backend="onnx")
+        per_view = []
+        for frame in onsite_frames:
+            left, right = segmenter.segment_pair(frame.left_image, frame.right_image)
+            per_view += [score_mask(left, frame.left_mask), score_mask(right, frame.right_mask)]
+        scores[name] = mean_scores(per_view)
+    print({name: np.round(s.iou, 3) for name, s in scores.items()})
+    assert scores["m_tosot"].iou > scores["m_ost"].iou + 0.1
+    assert scores["m_tosot"].iou >= MIN_TOSOT_IOU
+    assert scores["m_tosot"].f1 > scores["m_ost"].f1

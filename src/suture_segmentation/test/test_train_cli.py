@@ -1,0 +1,115 @@
+"""Training learns, fine-tuning keeps the extractor, and the ``suture-seg`` commands work end to end."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from suture_segmentation.checkpoint import load_checkpoint
+from suture_segmentation.cli import main
+from suture_segmentation.data import load_folder
+from suture_segmentation.model import SutureUNet
+from suture_segmentation.train import TrainConfig, evaluate_model, train
+
+TINY = ["--epochs", "2", "--steps-per-epoch", "15", "--batch-size", "4", "--crop", "48", "--quiet"]
+
+
+def test_training_learns_thin_lines(tmp_path: Path, make_folder) -> None:
+    data = load_folder(*(make_folder(tmp_path / "train", 8, seed=5) / sub for sub in ("images", "masks")))
+    test = load_folder(*(make_folder(tmp_path / "test", 4, seed=6) / sub for sub in ("images", "masks")))
+    torch.manual_seed(0)
+    model = SutureUNet((8, 8, 16, 16, 16))
+    before = evaluate_model(model, test)["iou"]
+    config = TrainConfig(
+        epochs=3, steps_per_epoch=25, batch_size=4, crop=48, learning_rate=1e-2, loss="ce_dice"
+    )
+    best = train(model, data, test, config, tmp_path / "run", progress=False)
+    assert best["val_iou"] > max(0.5, before + 0.3)
+    log = [json.loads(line) for line in (tmp_path / "run" / "log.jsonl").read_text().splitlines()]
+    assert [line["epoch"] for line in log] == [1, 2, 3]
+    assert {"loss", "val_iou", "val_precision", "val_recall", "val_f1"} <= set(log[0])
+
+
+def test_train_finetune_export_evaluate_bench_commands(
+    tmp_path: Path, capsys: pytest.CaptureFixture, make_folder
+) -> None:
+    folder = make_folder(tmp_path / "data", 4, seed=2)
+    images, masks = str(folder / "images"), str(folder / "masks")
+    assert (
+        main(
+            [
+                "train",
+                "--images",
+                images,
+                "--masks",
+                masks,
+                "--out",
+                str(tmp_path / "a"),
+                "--widths",
+                "4,4,8,8,8",
+                *TINY,
+            ]
+        )
+        == 0
+    )
+    source = tmp_path / "a" / "best.pt"
+    model, meta = load_checkpoint(source)
+    assert meta["command"].startswith("suture-seg train --images") and meta["config"]["seed"] == 0
+
+    assert (
+        main(
+            [
+                "finetune",
+                "--weights",
+                str(source),
+                "--images",
+                images,
+                "--masks",
+                masks,
+                "--out",
+                str(tmp_path / "b"),
+                *TINY,
+            ]
+        )
+        == 0
+    )
+    tuned, tuned_meta = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert tuned_meta["finetuned_from"] == str(source)
+    for key, value in model.feature_extractor.state_dict().items():
+        assert torch.equal(value, tuned.feature_extractor.state_dict()[key]), key
+
+    assert main(["export", "--weights", str(source), "--out", str(tmp_path / "m.onnx")]) == 0
+    assert (tmp_path / "m.onnx").stat().st_size > 1000
+
+    report = tmp_path / "report"
+    weights = f"A={source},B={tmp_path / 'b' / 'last.pt'}"
+    args = ["evaluate", "--weights", weights, "--images", images, "--masks", masks, "--report", str(report)]
+    assert main(args) == 0
+    table = (report / "table.md").read_text()
+    assert "| Set 1 | IoU |" in table and "| A | B |" in table.replace("metric | ", "")
+    scores = json.loads((report / "scores.json").read_text())
+    assert len(scores["Set 1"]["A"]["per_image"]) == 4
+    assert (report / "per_image.png").stat().st_size > 0
+    assert (report / "overlays_set1.png").stat().st_size > 0
+
+    capsys.readouterr()
+    assert main(["bench", "--weights", str(source), "--resolution", "64x48", "--pairs", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "onnx" in out and "torch" in out and "ms per stereo pair" in out
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["train", "--images", "/nonexistent", "--masks", "/nonexistent", "--out", "/tmp/x"],
+        ["export", "--weights", "/nonexistent.pt", "--out", "/tmp/x.onnx"],
+        ["bench", "--weights", "/nonexistent.pt", "--pairs", "1"],
+    ],
+)
+def test_command_errors_are_one_line(args: list[str], capsys: pytest.CaptureFixture) -> None:
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"suture-seg {args[0]}: error:") and "\n" not in err
