@@ -1,4 +1,4 @@
-"""Offline evaluation and benchmarks (suture-eval, not built yet: issue 7).
+"""Offline evaluation and benchmarks: suture-eval, suture-order-bench, suture-recon-bench.
 
 The only package allowed to import every stage.
 """

@@ -21,10 +21,9 @@ points. Latencies are wall-clock milliseconds per stereo frame (medians).
 
 from __future__ import annotations
 
-import importlib
 import time
 from collections import defaultdict
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,11 +71,7 @@ def evaluate(
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
-    stages = _Stages(masks, sequences)
-    if stages.segment is not None and seg_weights is not None:
-        from suture_segmentation.core import Segmenter
-
-        stages.segment = Segmenter(seg_weights).segment_pair
+    stages = _Stages(masks, sequences, seg_weights)
     tally = _Tally()
     for bag in find_bags(paths):
         try:
@@ -84,43 +79,36 @@ def evaluate(
                 _evaluate_frame(frame, stages, tally)
         except BagError as error:
             raise EvaluationError(str(error)) from error
-    for reason in stages.missing:
-        tally.note(reason)
     return _summary(tally, masks, sequences)
 
 
 class _Stages:
-    """The stage entry points the sources need, imported on demand (a stage may not exist yet).
+    """The stage entry points the sources need; a stage that is not run is not imported
+    (segmentation pulls in torch and loads a model).
 
-    Entry points: ``suture_segmentation.core.segment_stereo(left_image, right_image) -> (left_mask,
-    right_mask)``, ``suture_ordering.core.order_stereo(left_mask, right_mask, tip_hint, camera)``
-    (``.left``/``.right`` (N, 2) sequences) and ``suture_reconstruction.core.reconstruct(left,
-    right, camera)`` (``.path``, ``.grasp_position``).
+    ``segment(left_image, right_image) -> (left_mask, right_mask)`` is
+    :meth:`suture_segmentation.core.Segmenter.segment_pair`;
+    ``order(left_mask, right_mask, tip_hint, camera)`` is
+    :func:`suture_ordering.core.order_stereo` (``.left``/``.right`` (N, 2) sequences);
+    ``reconstruct(left, right, camera)`` is :func:`suture_reconstruction.core.reconstruct`
+    (``.path``, ``.grasp_position``).
     """
 
-    def __init__(self, masks: str, sequences: str) -> None:
-        self.missing: list[str] = []
-        self.segment = self._load(
-            "suture_segmentation.core", "segment_stereo", masks == "predicted", "segmentation (issue 3)"
-        )
-        self.order = self._load(
-            "suture_ordering.core", "order_stereo", sequences == "predicted", "ordering (issue 4)"
-        )
-        self.reconstruct = self._load(
-            "suture_reconstruction.core", "reconstruct", True, "reconstruction (issue 5)"
-        )
-        self.masks, self.sequences = masks, sequences
+    def __init__(self, masks: str, sequences: str, seg_weights: str | None) -> None:
+        from suture_reconstruction.core import reconstruct
 
-    def _load(self, module: str, name: str, needed: bool, label: str) -> Any:
-        if not needed:
-            return None
-        try:
-            return getattr(importlib.import_module(module), name)
-        except (ImportError, AttributeError):
-            self.missing.append(
-                f"{label}: stage not built yet ({module}.{name} missing); its figures are null"
-            )
-            return None
+        self.masks, self.sequences = masks, sequences
+        self.segment: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
+        self.order: Callable[..., Any] | None = None
+        self.reconstruct = reconstruct
+        if masks == "predicted":
+            from suture_segmentation.core import Segmenter
+
+            self.segment = Segmenter(seg_weights).segment_pair
+        if sequences == "predicted":
+            from suture_ordering.core import order_stereo
+
+            self.order = order_stereo
 
 
 def _evaluate_frame(frame: Frame, stages: _Stages, tally: _Tally) -> None:
@@ -132,45 +120,38 @@ def _evaluate_frame(frame: Frame, stages: _Stages, tally: _Tally) -> None:
     tally.per_frame.append(record)
     total = 0.0
 
-    masks: tuple[np.ndarray, np.ndarray] | None = (frame.true_left_mask, frame.true_right_mask)
-    if stages.masks == "predicted":
-        masks = None
-        if stages.segment is not None:
-            start = time.perf_counter()
-            masks = stages.segment(frame.left_image, frame.right_image)
-            total += _lap(tally, "segmentation", start)
-            for predicted, truth in zip(masks, (frame.true_left_mask, frame.true_right_mask), strict=True):
-                predicted = np.asarray(predicted) > 0
-                tally.pixels += [
-                    np.sum(predicted & truth),
-                    np.sum(predicted & ~truth),
-                    np.sum(~predicted & truth),
-                ]
+    masks = (frame.true_left_mask, frame.true_right_mask)
+    if stages.segment is not None:
+        start = time.perf_counter()
+        masks = stages.segment(frame.left_image, frame.right_image)
+        total += _lap(tally, "segmentation", start)
+        for predicted, truth in zip(masks, (frame.true_left_mask, frame.true_right_mask), strict=True):
+            predicted = np.asarray(predicted) > 0
+            tally.pixels += [
+                np.sum(predicted & truth),
+                np.sum(predicted & ~truth),
+                np.sum(~predicted & truth),
+            ]
 
     sequences: tuple[np.ndarray, np.ndarray] | None = (
         frame.true_left_sequence[:, :2],
         frame.true_right_sequence[:, :2],
     )
-    if stages.sequences == "predicted":
-        sequences = None
-        if stages.order is not None and masks is not None:
-            start = time.perf_counter()
-            try:
-                ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera)
-            except ValueError as error:
-                tally.failures[f"ordering: {type(error).__name__}"] += 1
-                record["ordering_error"] = str(error)
-                ordering = None
-            total += _lap(tally, "ordering", start)
-            success = (
-                ordering is not None and ordering_success(ordering.left, frame.true_left_sequence).success
-            )
-            tally.ordering[frame.topology].append(bool(success))
-            record["ordering_success"] = bool(success)
-            if ordering is not None:
-                sequences = (ordering.left, ordering.right)
+    if stages.order is not None:
+        start = time.perf_counter()
+        try:
+            ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera)
+        except ValueError as error:
+            tally.failures[f"ordering: {type(error).__name__}"] += 1
+            record["ordering_error"] = str(error)
+            ordering = None
+        total += _lap(tally, "ordering", start)
+        success = ordering is not None and ordering_success(ordering.left, frame.true_left_sequence).success
+        tally.ordering[frame.topology].append(bool(success))
+        record["ordering_success"] = bool(success)
+        sequences = None if ordering is None else (ordering.left, ordering.right)
 
-    if sequences is None or stages.reconstruct is None:
+    if sequences is None:
         return
     start = time.perf_counter()
     try:
