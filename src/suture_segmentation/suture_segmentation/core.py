@@ -14,7 +14,7 @@ the threshold (float rounding differences between the two runtimes).
 
 from __future__ import annotations
 
-import threading
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -22,13 +22,17 @@ import torch
 from torch.nn import functional
 
 from suture_segmentation.checkpoint import WeightsError, load_checkpoint, onnx_bytes, resolve_weights
-from suture_segmentation.model import STRIDE, SUTURE, pad_to_multiple
+from suture_segmentation.model import STRIDE, SUTURE, pad_to_multiple, suture_probability
 
 BACKENDS = ("onnx", "torch")
 
 
 class SegmentationInputError(ValueError):
     """An image cannot be segmented (wrong dtype or shape, empty, left/right sizes differ)."""
+
+
+class StereoSizeMismatchError(SegmentationInputError):
+    """The left and right images of a stereo pair differ in size."""
 
 
 class Segmenter:
@@ -72,7 +76,6 @@ class Segmenter:
         self.backend, self.device, self.threshold = backend, device, float(threshold)
         self.input_size = tuple(int(v) for v in input_size) if input_size is not None else None
         self.weights = resolve_weights(weights)
-        self._lock = threading.Lock()
         if backend == "torch":
             if threads:
                 torch.set_num_threads(threads)
@@ -113,16 +116,13 @@ class Segmenter:
             batch = functional.interpolate(
                 batch, size=self.input_size[::-1], mode="bilinear", align_corners=False
             )
-        batch, (h, w) = pad_to_multiple(batch)
-        with self._lock:
-            if self.backend == "torch":
-                with torch.inference_mode():
-                    logits = self._model(batch.to(self.device)).float()
-                    suture = torch.softmax(logits, dim=1)[:, SUTURE, :h, :w].cpu()
-            else:
-                (logits,) = self._session.run(["logits"], {"image": batch.numpy()})
-                suture = torch.softmax(torch.from_numpy(logits), dim=1)[:, SUTURE, :h, :w]
-        if (w, h) != (width, height):
+        if self.backend == "torch":
+            suture = suture_probability(self._model, batch.to(self.device)).cpu()
+        else:
+            padded, (h, w) = pad_to_multiple(batch)
+            (logits,) = self._session.run(["logits"], {"image": padded.numpy()})
+            suture = torch.softmax(torch.from_numpy(logits), dim=1)[:, SUTURE, :h, :w]
+        if suture.shape[-2:] != (height, width):
             suture = functional.interpolate(suture[:, None], size=(height, width), mode="bilinear")[:, 0]
         return suture.numpy()
 
@@ -131,7 +131,18 @@ class Segmenter:
         return [np.where(p > self.threshold, 255, 0).astype(np.uint8) for p in self.probabilities(images)]
 
     def segment_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Masks of a stereo pair (one batch of two)."""
+        """Masks of a stereo pair (one batch of two).
+
+        Raises:
+            StereoSizeMismatchError: left and right differ in size.
+            SegmentationInputError: an image cannot be segmented.
+        """
+        left_size, right_size = np.shape(left)[1::-1], np.shape(right)[1::-1]
+        if left_size != right_size:
+            raise StereoSizeMismatchError(
+                f"left image is {left_size[0]}x{left_size[1]} "
+                f"but right image is {right_size[0]}x{right_size[1]}"
+            )
         left_mask, right_mask = self.segment([left, right])
         return left_mask, right_mask
 
@@ -161,17 +172,10 @@ def _as_batch(images: list[np.ndarray]) -> torch.Tensor:
     return batch.float().div_(255.0).contiguous()
 
 
-_default: Segmenter | None = None
-_default_lock = threading.Lock()
-
-
+@functools.cache
 def default_segmenter() -> Segmenter:
     """The process-wide segmenter with the shipped M-ToSOT weights (ONNX Runtime, CPU)."""
-    global _default
-    with _default_lock:
-        if _default is None:
-            _default = Segmenter()
-        return _default
+    return Segmenter()
 
 
 def segment_stereo(left_image: np.ndarray, right_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

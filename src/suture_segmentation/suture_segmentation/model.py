@@ -147,3 +147,13 @@ def pad_to_multiple(batch: torch.Tensor, multiple: int = STRIDE) -> tuple[torch.
     if pad_h or pad_w:
         batch = functional.pad(batch, (0, pad_w, 0, pad_h), mode="replicate")
     return batch, (height, width)
+
+
+def suture_probability(model: SutureUNet, batch: torch.Tensor) -> torch.Tensor:
+    """(B, H, W) suture probability of a (B, 3, H, W) [0, 1] batch of any size (padded inside).
+
+    Runs without gradients; the caller puts ``model`` in eval mode and on the batch's device.
+    """
+    padded, (height, width) = pad_to_multiple(batch)
+    with torch.inference_mode():
+        return torch.softmax(model(padded).float(), dim=1)[:, SUTURE, :height, :width]

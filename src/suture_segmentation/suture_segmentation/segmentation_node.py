@@ -46,7 +46,7 @@ from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_r
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import LEFT_IMAGE, LEFT_MASK, RIGHT_IMAGE, RIGHT_MASK
 from suture_segmentation.checkpoint import WeightsError
-from suture_segmentation.core import SegmentationInputError, Segmenter
+from suture_segmentation.core import SegmentationInputError, Segmenter, StereoSizeMismatchError
 
 NODE_NAME = "segmentation_node"
 
@@ -144,16 +144,11 @@ class SegmentationNode(Node):
                     image_problem(message), f"dropped stereo pair at {stamp_ns} ns: {side} image: {exc}"
                 )
                 return None
-        (left_height, left_width), (right_height, right_width) = (a.shape[:2] for a in images)
-        if (left_width, left_height) != (right_width, right_height):
-            self._warnings.warn(
-                "size_mismatch",
-                f"dropped stereo pair at {stamp_ns} ns: left image is {left_width}x{left_height} "
-                f"but right image is {right_width}x{right_height}",
-            )
-            return None
         try:
             left_mask, right_mask = self.segmenter.segment_pair(*images)
+        except StereoSizeMismatchError as exc:
+            self._warnings.warn("size_mismatch", f"dropped stereo pair at {stamp_ns} ns: {exc}")
+            return None
         except SegmentationInputError as exc:
             self._warnings.warn("bad_image", f"dropped stereo pair at {stamp_ns} ns: {exc}")
             return None

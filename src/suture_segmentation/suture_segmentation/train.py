@@ -27,7 +27,7 @@ from tqdm import tqdm
 from suture_segmentation.checkpoint import load_checkpoint, save_checkpoint
 from suture_segmentation.data import CropSampler, LabelledImages
 from suture_segmentation.metrics import mean_scores, score_mask
-from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, pad_to_multiple
+from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, suture_probability
 
 LOSSES = ("ce", "ce_dice")
 
@@ -79,14 +79,12 @@ def segmentation_loss(logits: torch.Tensor, labels: torch.Tensor, loss: str) -> 
     return value
 
 
-@torch.inference_mode()
 def predict_probabilities(model: SutureUNet, image: np.ndarray, device: str = "cpu") -> np.ndarray:
     """(H, W) float32 suture probability of one (H, W, 3) uint8 RGB image."""
     was_training = model.training
     model.eval()
     batch = torch.from_numpy(image).permute(2, 0, 1)[None].float().div_(255.0)
-    batch, (height, width) = pad_to_multiple(batch)
-    probability = torch.softmax(model(batch.to(device)), dim=1)[0, SUTURE, :height, :width].cpu().numpy()
+    probability = suture_probability(model, batch.to(device))[0].cpu().numpy()
     model.train(was_training)
     return probability
 
