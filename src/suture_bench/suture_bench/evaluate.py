@@ -16,7 +16,13 @@ all frames; ordering success per ``suture_bench.ordering_metrics``; reconstructi
 error is the distance from each reconstructed path point to the true 3D
 centreline (mean over frames of the per-frame mean, max over frames of the
 per-frame max); grasp error is the 3D distance between predicted and true grasp
-points. Latencies are wall-clock milliseconds per stereo frame (medians).
+points; ``within_5mm`` is the share of *all* frames whose grasp point is within 5 mm
+(a frame without a grasp point is a miss). Latencies are wall-clock milliseconds per
+stereo frame (``latency_ms`` medians, ``latency_p95_ms`` 95th percentiles).
+
+Running and scoring are separate: :class:`Scoreboard` scores a frame's
+:class:`StageOutputs` however they were made, so the node graph's recorded outputs
+(``suture-graph-report``) are scored by the very same code as ``suture-eval``.
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ class _Tally:
     keypoints: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     latency: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     failures: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    grasp_missing: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     notes: list[str] = field(default_factory=list)
     per_frame: list[dict[str, Any]] = field(default_factory=list)
 
@@ -72,14 +79,14 @@ def evaluate(
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
     stages = _Stages(masks, sequences, seg_weights)
-    tally = _Tally()
+    scoreboard = Scoreboard(ordering_ran=sequences == "predicted")
     for bag in find_bags(paths):
         try:
             for frame in read_frames(bag, images=masks == "predicted"):
-                _evaluate_frame(frame, stages, tally)
+                scoreboard.add(frame, _run_frame(frame, stages))
         except BagError as error:
             raise EvaluationError(str(error)) from error
-    return _summary(tally, masks, sequences)
+    return scoreboard.summary(masks, sequences)
 
 
 class _Stages:
@@ -111,71 +118,128 @@ class _Stages:
             self.order = order_stereo
 
 
-def _evaluate_frame(frame: Frame, stages: _Stages, tally: _Tally) -> None:
-    from suture_bench.ordering_metrics import ordering_success
-    from suture_bench.reconstruction_metrics import score_reconstruction
+@dataclass
+class StageOutputs:
+    """What the pipeline produced for one frame, however it ran (core functions or node graph).
 
-    tally.frames += 1
-    record: dict[str, Any] = {"stamp_ns": frame.stamp_ns, "topology": frame.topology}
-    tally.per_frame.append(record)
-    total = 0.0
+    ``masks``: predicted (left, right) (H, W) masks, None when the true masks were used;
+    ``sequences``: predicted (left, right) (N, 2) sequences, None when the ordering stage did
+    not run or failed; ``path`` (M, 3) m and ``grasp`` (3,) m, None when the 3D stage failed;
+    ``failure``: 'stage: reason' of the first stage that gave nothing; ``latency_ms``: per stage.
+    """
 
+    masks: tuple[np.ndarray, np.ndarray] | None = None
+    sequences: tuple[np.ndarray, np.ndarray] | None = None
+    path: np.ndarray | None = None
+    grasp: np.ndarray | None = None
+    failure: str | None = None
+    detail: str | None = None
+    latency_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Scoreboard:
+    """Scores frames against their ground truth and builds the evaluation summary.
+
+    ``ordering_ran``: whether the ordering stage produced the sequences (its success is
+    then scored per frame; with true sequences it is not).
+    """
+
+    def __init__(self, ordering_ran: bool = True) -> None:
+        self.ordering_ran = ordering_ran
+        self.tally = _Tally()
+
+    def add(self, frame: Frame, outputs: StageOutputs) -> dict[str, Any]:
+        """Score one frame's outputs; returns its per-frame record (also kept in the summary)."""
+        from suture_bench.ordering_metrics import ordering_success
+        from suture_bench.reconstruction_metrics import score_reconstruction
+
+        tally = self.tally
+        tally.frames += 1
+        record: dict[str, Any] = {"stamp_ns": frame.stamp_ns, "topology": frame.topology}
+        tally.per_frame.append(record)
+        for stage, ms in outputs.latency_ms.items():
+            tally.latency[stage].append(ms)
+        if outputs.masks is not None:
+            truths = (frame.true_left_mask, frame.true_right_mask)
+            for predicted, truth in zip(outputs.masks, truths, strict=True):
+                predicted = np.asarray(predicted) > 0
+                tally.pixels += [
+                    np.sum(predicted & truth),
+                    np.sum(predicted & ~truth),
+                    np.sum(~predicted & truth),
+                ]
+        if outputs.failure is not None:
+            tally.failures[outputs.failure] += 1
+            record["failure"] = outputs.failure
+            if outputs.detail:
+                record["failure_detail"] = outputs.detail
+        if self.ordering_ran:
+            success = outputs.sequences is not None and bool(
+                ordering_success(outputs.sequences[0], frame.true_left_sequence).success
+            )
+            tally.ordering[frame.topology].append(success)
+            record["ordering_success"] = success
+        if outputs.path is None or outputs.grasp is None:
+            tally.grasp_missing[frame.topology] += 1
+            return record
+        score = score_reconstruction(outputs.path, frame.true_path, outputs.grasp, frame.true_grasp)
+        tally.recon_mean[frame.topology].append(score.mean_error)
+        tally.recon_max[frame.topology].append(score.max_error)
+        tally.length_error[frame.topology].append(abs(score.length_error))
+        tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
+        tally.grasp[frame.topology].append(score.grasp_error)
+        record.update(score.as_mm(), grasp_position=np.asarray(outputs.grasp).tolist())
+        return record
+
+    def summary(self, masks: str, sequences: str) -> dict:
+        """The JSON summary of DESIGN.md's evaluation contract (plus ``per_frame``)."""
+        return _summary(self.tally, masks, sequences)
+
+
+def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
+    """Run the stages the sources ask for on one frame (the nodes' core functions)."""
+    outputs = StageOutputs()
     masks = (frame.true_left_mask, frame.true_right_mask)
     if stages.segment is not None:
         start = time.perf_counter()
         masks = stages.segment(frame.left_image, frame.right_image)
-        total += _lap(tally, "segmentation", start)
-        for predicted, truth in zip(masks, (frame.true_left_mask, frame.true_right_mask), strict=True):
-            predicted = np.asarray(predicted) > 0
-            tally.pixels += [
-                np.sum(predicted & truth),
-                np.sum(predicted & ~truth),
-                np.sum(~predicted & truth),
-            ]
+        outputs.latency_ms["segmentation"] = _elapsed_ms(start)
+        outputs.masks = masks
 
-    sequences: tuple[np.ndarray, np.ndarray] | None = (
-        frame.true_left_sequence[:, :2],
-        frame.true_right_sequence[:, :2],
-    )
+    sequences = (frame.true_left_sequence[:, :2], frame.true_right_sequence[:, :2])
     if stages.order is not None:
         start = time.perf_counter()
         try:
             ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera)
         except ValueError as error:
-            tally.failures[f"ordering: {type(error).__name__}"] += 1
-            record["ordering_error"] = str(error)
-            ordering = None
-        total += _lap(tally, "ordering", start)
-        success = ordering is not None and ordering_success(ordering.left, frame.true_left_sequence).success
-        tally.ordering[frame.topology].append(bool(success))
-        record["ordering_success"] = bool(success)
-        sequences = None if ordering is None else (ordering.left, ordering.right)
+            outputs.latency_ms["ordering"] = _elapsed_ms(start)
+            outputs.failure, outputs.detail = f"ordering: {type(error).__name__}", str(error)
+            return outputs
+        outputs.latency_ms["ordering"] = _elapsed_ms(start)
+        sequences = outputs.sequences = (ordering.left, ordering.right)
 
-    if sequences is None:
-        return
     start = time.perf_counter()
     try:
         result = stages.reconstruct(sequences[0], sequences[1], frame.camera)
     except ValueError as error:
-        _lap(tally, "reconstruction", start)
-        tally.failures[f"reconstruction: {type(error).__name__}"] += 1
-        record["reconstruction_error"] = str(error)
-        return
-    total += _lap(tally, "reconstruction", start)
-    tally.latency["total"].append(total)
-    score = score_reconstruction(result.path, frame.true_path, result.grasp_position, frame.true_grasp)
-    tally.recon_mean[frame.topology].append(score.mean_error)
-    tally.recon_max[frame.topology].append(score.max_error)
-    tally.length_error[frame.topology].append(abs(score.length_error))
-    tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
-    tally.grasp[frame.topology].append(score.grasp_error)
-    record.update(score.as_mm(), grasp_position=np.asarray(result.grasp_position).tolist())
+        outputs.latency_ms["reconstruction"] = _elapsed_ms(start)
+        outputs.failure, outputs.detail = f"reconstruction: {type(error).__name__}", str(error)
+        return outputs
+    outputs.latency_ms["reconstruction"] = _elapsed_ms(start)
+    outputs.latency_ms["total"] = sum(outputs.latency_ms.values())
+    outputs.path, outputs.grasp = result.path, result.grasp_position
+    return outputs
 
 
-def _lap(tally: _Tally, stage: str, start: float) -> float:
-    elapsed = 1000 * (time.perf_counter() - start)
-    tally.latency[stage].append(elapsed)
-    return elapsed
+def _elapsed_ms(start: float) -> float:
+    return 1000 * (time.perf_counter() - start)
+
+
+def _latency(tally: _Tally, percentile: float) -> dict[str, float | None]:
+    return {
+        stage: (float(np.percentile(tally.latency[stage], percentile)) if tally.latency.get(stage) else None)
+        for stage in ("segmentation", "ordering", "reconstruction", "total")
+    }
 
 
 def _mean(values: Iterable[float], scale: float = 1.0) -> float | None:
@@ -203,8 +267,12 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
     all_means = [v for values in tally.recon_mean.values() for v in values]
     all_max = [v for values in tally.recon_max.values() for v in values]
     all_grasp = [v for values in tally.grasp.values() for v in values]
+    # Frames without a grasp point count as misses: "within 5 mm" is a share of all frames.
+    scored_frames = len(all_grasp) + sum(tally.grasp_missing.values())
     for failure, count in sorted(tally.failures.items()):
-        tally.note(f"{failure} in {count} frame(s): counted as failures, excluded from error figures")
+        tally.note(
+            f"{failure} in {count} frame(s): excluded from the error figures, counted as misses in within_5mm"
+        )
     return {
         "frames": tally.frames,
         "masks": masks,
@@ -226,6 +294,8 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
                     "grasp_max_error_mm": float(np.max(tally.grasp[t])) * 1000,
                     "length_error_mm": _mean(tally.length_error[t], 1000),
                     "keypoint_error_mm": _mean(tally.keypoints[t], 1000),
+                    "within_5mm": float(np.sum(np.asarray(tally.grasp[t]) <= 0.005))
+                    / (len(tally.grasp[t]) + tally.grasp_missing[t]),
                     "frames": len(tally.recon_mean[t]),
                 }
                 for t in sorted(tally.recon_mean)
@@ -234,12 +304,12 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
         "grasp": {
             "median_error_mm": float(np.median(all_grasp)) * 1000 if all_grasp else None,
             "max_error_mm": float(np.max(all_grasp)) * 1000 if all_grasp else None,
-            "within_5mm": _mean(np.asarray(all_grasp) <= 0.005) if all_grasp else None,
+            "within_5mm": (
+                float(np.sum(np.asarray(all_grasp) <= 0.005)) / scored_frames if scored_frames else None
+            ),
         },
-        "latency_ms": {
-            stage: (float(np.median(tally.latency[stage])) if tally.latency.get(stage) else None)
-            for stage in ("segmentation", "ordering", "reconstruction", "total")
-        },
+        "latency_ms": _latency(tally, 50),
+        "latency_p95_ms": _latency(tally, 95),
         "notes": tally.notes,
         "per_frame": tally.per_frame,
     }
