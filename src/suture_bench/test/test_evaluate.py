@@ -58,7 +58,9 @@ def test_cli_writes_the_json_summary_and_fails_with_one_line(tmp_path):
     summary = json.loads(out.read_text())
     assert set(summary) >= KEYS and summary["masks"] == "ground_truth"
     assert 0.0 <= summary["ordering"]["success_rate"] <= 1.0
-    assert "ordering ok" in ok.stdout
+    # the table by topology, the paper's figures beside ours, and the latency table
+    assert "paper key pts" in ok.stdout and "1.85 / 4.1" in ok.stdout and "self_intersected" in ok.stdout
+    assert "latency (ms per stereo frame)" in ok.stdout and "p95" in ok.stdout
     bad = subprocess.run(
         [sys.executable, "-m", "suture_bench.cli", str(tmp_path / "missing")], capture_output=True, text=True
     )
