@@ -21,6 +21,7 @@ setup(
     entry_points={
         "console_scripts": [
             "suture-eval = suture_bench.cli:main",
+            "suture-graph-report = suture_bench.graph_report:main",
             "suture-recon-bench = suture_bench.reconstruction_metrics:main",
             "suture-order-bench = suture_bench.ordering_bench:main",
         ],

@@ -1,0 +1,297 @@
+"""``suture-graph-report``: score and show what the node graph published for a replayed bag.
+
+The demo replays a simulator bag through the running nodes and records their
+outputs (``ros2_ws/launch.sh --bag BAG --record OUTPUTS``). This command joins the
+recorded outputs with the bag's ground truth by header stamp, scores them with the
+same :class:`suture_bench.evaluate.Scoreboard` as ``suture-eval`` (one truth for both),
+prints per frame the grasp point in the camera and robot frames and its error, and
+writes a report folder::
+
+    OUT/summary.json         DESIGN.md's evaluation summary of the graph's outputs, plus "graph":
+                             the player's latency figures and the nodes' peak memory when given
+    OUT/frames.json          per frame: stamp, topology, grasp in camera and robot frames, error
+    OUT/overlays/*.png       left image, predicted mask, sequence from blue (cut tip) to red,
+                             predicted grasp point (yellow ring) and the true one (cyan cross)
+    OUT/centreline_3d.png    reconstructed (red) against true (black) 3D centrelines
+
+Per-stage latencies come from the recorder's receive times (``ros2 bag record``'s log
+time) relative to the player's publication time of the frame, so they include transport.
+
+Example::
+
+    suture-graph-report --bag bags/sample --outputs out/demo/report/outputs \\
+        --player-report out/demo/player.json --out out/demo/report
+
+Exit status 0 on success, 1 with one line on standard error when an input cannot be read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import defaultdict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from suture_bench.cli import render_table
+from suture_bench.evaluate import Scoreboard, StageOutputs
+from suture_bench.frames import EvaluationError, Frame, read_frames
+from suture_common import messages, topics
+from suture_common.bag_io import read_messages
+from suture_ordering.figures import draw_sequence
+
+TARGET_POSE = "/grasp_executor/target_pose"
+OUTPUT_TOPICS = (
+    topics.LEFT_MASK,
+    topics.RIGHT_MASK,
+    topics.LEFT_SEQUENCE,
+    topics.RIGHT_SEQUENCE,
+    topics.PATH,
+    topics.GRASP_POSE,
+    TARGET_POSE,
+)
+
+
+@dataclass
+class Received:
+    """The graph's outputs of one stamp: rosbags messages and receive times (ns) by topic."""
+
+    messages: dict[str, Any] = field(default_factory=dict)
+    received_ns: dict[str, int] = field(default_factory=dict)
+
+    def first_ns(self, *names: str) -> int | None:
+        """The latest receive time of the given topics (None if any is missing)."""
+        if not all(name in self.received_ns for name in names):
+            return None
+        return max(self.received_ns[name] for name in names)
+
+
+def read_outputs(bag: str | Path) -> dict[int, Received]:
+    """The recorded pipeline outputs of ``bag`` by header stamp (ns); the first message per topic wins."""
+    outputs: dict[int, Received] = defaultdict(Received)
+    for record in read_messages(bag, OUTPUT_TOPICS):
+        stamp = messages.ns_from_stamp(record.message.header.stamp)
+        entry = outputs[stamp]
+        if record.topic not in entry.messages:
+            entry.messages[record.topic] = record.message
+            entry.received_ns[record.topic] = record.timestamp_ns
+    return dict(outputs)
+
+
+def stage_outputs(frame: Frame, got: Received | None, published_ns: int | None) -> StageOutputs:
+    """What the graph published for ``frame`` as :class:`StageOutputs` (missing masks = empty masks)."""
+    got = got or Received()
+    result = StageOutputs()
+    found = got.messages
+    if topics.LEFT_MASK in found and topics.RIGHT_MASK in found:
+        result.masks = (
+            messages.image_to_array(found[topics.LEFT_MASK], expect="mono8"),
+            messages.image_to_array(found[topics.RIGHT_MASK], expect="mono8"),
+        )
+    else:
+        result.masks = (np.zeros_like(frame.true_left_mask), np.zeros_like(frame.true_right_mask))
+        result.failure = "segmentation: no masks published"
+    if topics.LEFT_SEQUENCE in found and topics.RIGHT_SEQUENCE in found:
+        result.sequences = (
+            messages.polygon_to_array(found[topics.LEFT_SEQUENCE])[:, :2],
+            messages.polygon_to_array(found[topics.RIGHT_SEQUENCE])[:, :2],
+        )
+    elif result.failure is None:
+        result.failure = "ordering: no sequences published"
+    if topics.GRASP_POSE in found and topics.PATH in found:
+        result.path = messages.path_to_array(found[topics.PATH])
+        result.grasp = messages.pose_to_arrays(found[topics.GRASP_POSE])[0]
+    elif result.failure is None:
+        result.failure = "reconstruction: no grasp pose published"
+    if published_ns is not None:
+        marks = [
+            ("segmentation", published_ns, got.first_ns(topics.LEFT_MASK, topics.RIGHT_MASK)),
+            (
+                "ordering",
+                got.first_ns(topics.LEFT_MASK, topics.RIGHT_MASK),
+                got.first_ns(topics.LEFT_SEQUENCE),
+            ),
+            ("reconstruction", got.first_ns(topics.LEFT_SEQUENCE), got.first_ns(topics.GRASP_POSE)),
+            ("total", published_ns, got.first_ns(topics.GRASP_POSE)),
+        ]
+        for stage, start, end in marks:
+            if start is not None and end is not None:
+                result.latency_ms[stage] = (end - start) / 1e6
+    return result
+
+
+def _published_ns(player_report: dict | None) -> dict[int, int]:
+    if not player_report:
+        return {}
+    return {
+        int(entry["stamp_ns"]): round(entry["published_s"] * 1e9)
+        for entry in player_report.get("per_frame", [])
+        if entry.get("published_s") is not None
+    }
+
+
+def _vector_mm(vector: np.ndarray | None) -> str:
+    if vector is None:
+        return "(not published)"
+    return "(" + ", ".join(f"{1000 * float(x):+8.1f}" for x in vector) + ") mm"
+
+
+def draw_overlay(frame: Frame, outputs: StageOutputs, error_mm: float | None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: the left image, the predicted mask, the sequence and the grasp points."""
+    canvas = np.ascontiguousarray(frame.left_image.copy())
+    if outputs.masks is not None:
+        mask = outputs.masks[0] > 0
+        canvas[mask] = (0.5 * canvas[mask] + 0.5 * np.array([255, 0, 255])).astype(np.uint8)
+    if outputs.sequences is not None and len(outputs.sequences[0]) > 1:
+        left = outputs.sequences[0]
+        sequence = SimpleNamespace(points=left, bridged=np.zeros(len(left), bool), tip=left[0])
+        canvas = draw_sequence(canvas, sequence)
+    true_uv = frame.camera.project(frame.true_grasp[None], "left")[0]
+    cv2.drawMarker(canvas, tuple(round(float(x)) for x in true_uv), (0, 255, 255), cv2.MARKER_CROSS, 14, 2)
+    if outputs.grasp is not None:
+        uv = frame.camera.project(np.asarray(outputs.grasp)[None], "left")[0]
+        cv2.circle(canvas, tuple(round(float(x)) for x in uv), 8, (255, 255, 0), 2, cv2.LINE_AA)
+    text = f"{frame.topology}  grasp error " + ("n/a" if error_mm is None else f"{error_mm:.2f} mm")
+    cv2.putText(canvas, text, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
+    return canvas
+
+
+def plot_centrelines(panels: list[tuple[Frame, StageOutputs]], path: Path) -> None:
+    """Reconstructed (red) and true (black) 3D centrelines of up to 10 frames, mm, camera frame."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = panels[:10]
+    columns = min(5, max(1, len(panels)))
+    rows = max(1, -(-len(panels) // columns))
+    figure = plt.figure(figsize=(3.2 * columns, 3.2 * rows))
+    for index, (frame, outputs) in enumerate(panels):
+        axes = figure.add_subplot(rows, columns, index + 1, projection="3d")
+        true = 1000 * frame.true_path
+        axes.plot(true[:, 0], true[:, 1], true[:, 2], color="black", linewidth=1.5, label="true")
+        axes.scatter(*(1000 * frame.true_grasp), color="black", s=20)
+        if outputs.path is not None:
+            ours = 1000 * np.asarray(outputs.path)
+            axes.plot(ours[:, 0], ours[:, 1], ours[:, 2], color="red", linewidth=1, label="reconstructed")
+            axes.scatter(*(1000 * np.asarray(outputs.grasp)), color="red", s=20)
+        axes.set_title(frame.topology, fontsize=9)
+        axes.invert_zaxis()
+        axes.tick_params(labelsize=6)
+        if index == 0:
+            axes.legend(fontsize=7, loc="upper left")
+    figure.suptitle("3D centreline, left camera frame (mm): reconstructed (red) vs true (black)", fontsize=10)
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def write_report(
+    bag: str | Path,
+    outputs_bag: str | Path,
+    out: str | Path,
+    player_report: dict | None = None,
+    memory: dict | None = None,
+    max_overlays: int = 20,
+    echo: bool = True,
+) -> dict:
+    """Score the recorded outputs against the bag's ground truth and write the report folder.
+
+    Returns the summary written to ``OUT/summary.json``.
+    """
+    out = Path(out)
+    (out / "overlays").mkdir(parents=True, exist_ok=True)
+    recorded = read_outputs(outputs_bag)
+    published = _published_ns(player_report)
+    scoreboard = Scoreboard(ordering_ran=True)
+    rows: list[dict[str, Any]] = []
+    panels: list[tuple[Frame, StageOutputs]] = []
+    for index, frame in enumerate(read_frames(Path(bag), images=True)):
+        got = recorded.get(frame.stamp_ns)
+        outputs = stage_outputs(frame, got, published.get(frame.stamp_ns))
+        record = scoreboard.add(frame, outputs)
+        error = record.get("grasp_error_mm")
+        robot = None
+        if got is not None and TARGET_POSE in got.messages:
+            robot = messages.pose_to_arrays(got.messages[TARGET_POSE])[0]
+        rows.append(
+            {
+                "stamp_ns": frame.stamp_ns,
+                "topology": frame.topology,
+                "grasp_camera_m": None if outputs.grasp is None else np.asarray(outputs.grasp).tolist(),
+                "grasp_robot_m": None if robot is None else robot.tolist(),
+                "grasp_error_mm": error,
+                "failure": outputs.failure,
+                "latency_ms": outputs.latency_ms,
+            }
+        )
+        if echo:
+            shown = "n/a" if error is None else f"{error:5.2f} mm"
+            print(
+                f"frame {index:3d} {frame.topology:16s} grasp camera {_vector_mm(outputs.grasp)}  "
+                f"robot {_vector_mm(robot)}  error {shown}"
+                + (f"  [{outputs.failure}]" if outputs.failure else "")
+            )
+        if index < max_overlays:
+            picture = draw_overlay(frame, outputs, error)
+            name = f"{index:03d}_{frame.topology}.png"
+            cv2.imwrite(str(out / "overlays" / name), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
+        panels.append((frame, outputs))
+    if not rows:
+        raise EvaluationError(f"{bag}: no frames with ground truth to report on")
+    plot_centrelines(panels, out / "centreline_3d.png")
+    summary = scoreboard.summary("predicted", "predicted")
+    summary.pop("per_frame")
+    summary["graph"] = {
+        "player": {k: v for k, v in (player_report or {}).items() if k != "per_frame"},
+        "peak_memory_mib": memory or {},
+        "frames_with_grasp_pose": sum(row["grasp_camera_m"] is not None for row in rows),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "frames.json").write_text(json.dumps(rows, indent=2))
+    return summary
+
+
+def _load_json(path: str | None) -> dict | None:
+    if not path:
+        return None
+    with open(path) as stream:
+        return json.load(stream)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="suture-graph-report", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--bag", required=True, help="the replayed bag, with ground truth")
+    parser.add_argument("--outputs", required=True, help="the recorded outputs of the node graph")
+    parser.add_argument("--out", required=True, help="report folder to write")
+    parser.add_argument("--player-report", help="the player's JSON report (latency per frame)")
+    parser.add_argument("--memory", help="peak memory per node (JSON from ros2_ws/launch.sh --memory)")
+    parser.add_argument("--max-overlays", type=int, default=20, help="overlay pictures written (default 20)")
+    args = parser.parse_args(argv)
+    try:
+        summary = write_report(
+            args.bag,
+            args.outputs,
+            args.out,
+            player_report=_load_json(args.player_report),
+            memory=_load_json(args.memory),
+            max_overlays=args.max_overlays,
+        )
+    except (EvaluationError, OSError, ValueError) as error:
+        print(f"suture-graph-report: error: {error}", file=sys.stderr)
+        return 1
+    print()
+    print(render_table(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
