@@ -14,7 +14,11 @@ both call. Steps (paper Section II.B end and II.C):
    over the other strand 1 px of disparity is about 3 mm of depth, and a
    flattened lift is arc length missing before the grasp point, which moves
    the grasp along the thread by as much (the grasp errors of 3-4 mm on the
-   ground-truth sequences of issue 5 had that cause, not a local error);
+   ground-truth sequences of issue 5 had that cause, not a local error).
+   It must not follow noise either: sequences traced on pixel masks carry a
+   quantisation saw-tooth correlated over tens of px, whose level is read from
+   the sequences' roughness (``pair_noise_floor``); followed, it is a depth
+   ripple that made threads 5-40 mm too long (issue 7);
 3. triangulation of every left sample with a supported disparity
    (``StereoCamera.triangulate``): the dense vertices ``points``;
 4. resampling of the vertices every ``vertex_step`` along each unbroken run and
@@ -45,6 +49,7 @@ from suture_reconstruction.pairing import (
     DisparitySmoothing,
     PairingParams,
     SelectionCosts,
+    pair_noise_floor,
     pair_sequences,
     regularise_disparity,
 )
@@ -63,7 +68,8 @@ class ReconstructionParams:
     bands, end pairs), ``disparity``
     (:class:`~suture_reconstruction.pairing.DisparitySmoothing`: the adaptive
     smoothing of the disparity along the thread, its ladder of smoothing
-    lengths, outlier rejection and extrapolation beyond the first/last pair),
+    lengths, the noise floor read from the sequences' roughness, outlier
+    rejection and extrapolation beyond the first/last pair),
     ``min_pairs`` (fewer pairs: NoStereoOverlapError). Shape: ``vertex_step`` (m
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
@@ -192,7 +198,10 @@ def reconstruct(
             f"{params.min_pairs} are needed (are both sequences of the same thread and stereo pair, and is "
             "camera_info the rectified pair?)"
         )
-    disparity = regularise_disparity(n_left, pairs.rows, pairs.disparity, pairs.weight, params.disparity)
+    noise_floor = pair_noise_floor(left.points, right.points, params.disparity)
+    disparity = regularise_disparity(
+        n_left, pairs.rows, pairs.disparity, pairs.weight, params.disparity, noise_floor
+    )
     rejected["outlier"] = int((~disparity.inlier).sum())
     t_pairing = time.perf_counter()
 

@@ -46,6 +46,12 @@ Pairing then works on rows:
    then millimetres off along the thread), so the smoother must be able to
    follow precise pairs closely (fine scales, outliers judged against the
    adaptive fit, no steps between scales: see :func:`regularise_disparity`).
+   The noise level behind the smoothing lengths is estimated from the pairs'
+   residuals, but not below a floor read from the two sequences
+   (:func:`pair_noise_floor`): centrelines traced on pixel masks carry a
+   quantisation saw-tooth correlated over tens of px, which the residuals miss
+   and which a fit that trusts them turns into a depth ripple of several mm,
+   i.e. extra arc length and a grasp point too early along the thread.
    Where the thread runs within ``min_crossing_angle_deg`` of the rows there
    are no pairs and the depth is interpolated from both sides.
 
@@ -61,7 +67,7 @@ from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from suture_reconstruction.sequences import row_alignment
+from suture_reconstruction.sequences import roughness, row_alignment
 from suture_reconstruction.smoothing import whittaker
 
 LAGS = np.array([1, 2, 3, 4, 5, 6, 8, 11, 16, 23, 32, 45, 64, 91, 128, 181, 256, 362, 512])
@@ -454,7 +460,9 @@ class DisparitySmoothing:
     rule for the standard and the fine scales; ``noise_reach_px``: reach of the
     fit whose residuals give the noise level; ``outlier_sigma`` and
     ``min_outlier_px``: pair rejection; ``max_gap_px``: extrapolation beyond the
-    first and last pair.
+    first and last pair. ``roughness_window``, ``roughness_fast_window``,
+    ``roughness_order``, ``roughness_white_ratio``, ``roughness_gain`` and
+    ``roughness_exact_px``: the noise floor of traced centrelines (:func:`pair_noise_floor`).
     """
 
     min_bandwidth_px: float = 9.0
@@ -467,8 +475,26 @@ class DisparitySmoothing:
     outlier_sigma: float = 4.0
     min_outlier_px: float = 0.5
     max_gap_px: float = 40.0
+    roughness_window: int = 31
+    roughness_fast_window: int = 15
+    roughness_order: int = 4
+    roughness_white_ratio: float = 3.0
+    roughness_gain: float = 14.0
+    roughness_exact_px: float = 0.002
 
     def __post_init__(self) -> None:
+        if not (self.roughness_gain >= 0 and self.roughness_exact_px >= 0):
+            raise ValueError(
+                "roughness_gain and roughness_exact_px must not be negative, got "
+                f"{self.roughness_gain}, {self.roughness_exact_px}"
+            )
+        if not self.roughness_window > self.roughness_fast_window > self.roughness_order >= 2:
+            raise ValueError(
+                "need roughness_window > roughness_fast_window > roughness_order >= 2, got "
+                f"{self.roughness_window}, {self.roughness_fast_window}, {self.roughness_order}"
+            )
+        if not self.roughness_white_ratio >= 0:
+            raise ValueError(f"roughness_white_ratio must not be negative, got {self.roughness_white_ratio}")
         if not 0 < self.min_reach_px <= self.min_bandwidth_px <= self.max_bandwidth_px:
             raise ValueError(
                 "need 0 < min_reach_px <= min_bandwidth_px <= max_bandwidth_px, got "
@@ -494,8 +520,58 @@ _KERNEL_L2 = 3.0 / (8.0 * np.sqrt(2.0))
 """Integral of the squared equivalent kernel of the cubic smoothing spline (Silverman 1984), 0.265."""
 
 
+def pair_noise_floor(left: np.ndarray, right: np.ndarray, params: DisparitySmoothing) -> float:
+    """Lower bound (px, for a pair of unit weight) of the pairs' noise level, from the two sequences.
+
+    A centreline traced on a pixel mask carries the mask's quantisation: an error
+    across the thread of a few tenths of a px that runs along it as a saw-tooth,
+    correlated over tens of px, and different in the two views (their pixel
+    grids cut the thread at different phases). Its slow part moves the row
+    crossings of both views coherently over tens of px, so the pairs' residuals
+    from a fit reaching ``noise_reach_px`` see only a fraction of it, and the
+    adaptive fit takes the rest for depth: a depth ripple of several mm along
+    the thread, which adds arc length (``length_error`` of +5 to +40 mm and the
+    grasp 5-17 mm too early along the thread on masks of simulated frames,
+    threads 20-30 deg off the rows the worst).
+
+    What shows the saw-tooth in a single view is that it is not smooth at the
+    scale of tens of px, which the image of a thread is:
+    :func:`suture_reconstruction.sequences.roughness` about a local quartic over
+    ``roughness_window`` (31) samples. Part of that is white noise, which the
+    pairs' residuals do measure, and which shows nearly as much about a quartic
+    over ``roughness_fast_window`` (15) samples: after the Savitzky-Golay
+    pre-smoothing it is at most ``roughness_white_ratio`` (3) times rougher over
+    31 samples than over 15 (2.2-2.6 in the tests' scenes), while the
+    saw-tooth is 4-12 times rougher. So the correlated part of a view is
+    c^2 = slow^2 - (ratio fast)^2 - ``roughness_exact_px``^2 (not below 0), the
+    last term the local fit's own error on an exact image curve (the most seen
+    on exact simulated sequences, tight loops included), so exact sequences
+    get no floor and their fit is as before (it follows the pairs' 0.01 px
+    precision; a floor of 0.008 px already flattened a lift enough to move one
+    grasp point by 0.3 mm). An error e across
+    the thread moves a crossing at angle a to the rows by e / sin(a), so for a
+    pair of unit weight the views add as hypot(c_left, c_right), and
+    ``roughness_gain`` scales that to the correlated error's equivalent white
+    noise level, which is far larger than its roughness because it is
+    correlated over tens of px (calibrated on masks of simulated frames: 14
+    puts the floor at 0.25-0.7 px for traced centrelines, 0.43 px typically).
+    """
+    order = params.roughness_order
+    total = 0.0
+    for points in (left, right):
+        slow = roughness(points, params.roughness_window, order)
+        fast = roughness(points, params.roughness_fast_window, order)
+        total += max(slow**2 - (params.roughness_white_ratio * fast) ** 2 - params.roughness_exact_px**2, 0.0)
+    return params.roughness_gain * float(np.sqrt(total))
+
+
 def regularise_disparity(
-    n_left: int, rows: np.ndarray, disparity: np.ndarray, weight: np.ndarray, params: DisparitySmoothing
+    n_left: int,
+    rows: np.ndarray,
+    disparity: np.ndarray,
+    weight: np.ndarray,
+    params: DisparitySmoothing,
+    noise_floor: float = 0.0,
 ) -> Disparity:
     """Adaptive smoothing of the pairs' ``disparity`` (P,) at left samples ``rows`` (P,) on the 1 px grid.
 
@@ -513,7 +589,8 @@ def regularise_disparity(
     from the smallest h up, each with the standard deviation
     sigma * sqrt(0.265 / (h rho^(3/4))) of the spline's equivalent kernel (rho:
     local weight per px, sigma estimated from the residuals of a fit reaching
-    about ``noise_reach_px``), and the largest h whose interval
+    about ``noise_reach_px``, but at least ``noise_floor``: see
+    :func:`pair_noise_floor`), and the largest h whose interval
     [z - Gamma sd, z + Gamma sd] still meets all the smaller ones' is used. So a
     sharp depth change where the thread is lifted over a crossing keeps its
     shape while long weak stretches are averaged widely.
@@ -555,7 +632,7 @@ def regularise_disparity(
     Beyond the first and last remaining pair the result extrapolates at most
     ``max_gap_px``; samples farther out are unsupported (NaN).
     """
-    value, bandwidth = _adaptive_fit(n_left, rows, disparity, weight, params)
+    value, bandwidth = _adaptive_fit(n_left, rows, disparity, weight, params, noise_floor)
     residual = disparity - value[rows]
     scaled = np.abs(residual) * np.sqrt(weight)
     sigma = 1.4826 * float(np.median(scaled)) + 1e-12
@@ -564,7 +641,7 @@ def regularise_disparity(
         inlier[:] = True
     if not inlier.all():
         rows = rows[inlier]
-        value, bandwidth = _adaptive_fit(n_left, rows, disparity[inlier], weight[inlier], params)
+        value, bandwidth = _adaptive_fit(n_left, rows, disparity[inlier], weight[inlier], params, noise_floor)
     grid = np.arange(n_left)
     supported = (grid >= rows.min() - params.max_gap_px) & (grid <= rows.max() + params.max_gap_px)
     supported &= np.isfinite(value)
@@ -572,7 +649,12 @@ def regularise_disparity(
 
 
 def _adaptive_fit(
-    n: int, rows: np.ndarray, values: np.ndarray, weight: np.ndarray, params: DisparitySmoothing
+    n: int,
+    rows: np.ndarray,
+    values: np.ndarray,
+    weight: np.ndarray,
+    params: DisparitySmoothing,
+    noise_floor: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ICI fit of :func:`regularise_disparity`: (n,) values and (n,) h used (px)."""
     scales = params.bandwidths(float(weight.min()) if weight.size else 1.0)
@@ -594,6 +676,7 @@ def _adaptive_fit(
     wide = np.column_stack([reach[:, :-1] >= params.noise_reach_px, np.ones(n, dtype=bool)])
     short = fits[at, np.argmax(wide, axis=1)]
     sigma = 1.4826 * float(np.median(np.abs(values - short[rows]) * np.sqrt(weight))) + 1e-9
+    sigma = max(sigma, float(noise_floor))  # correlated noise the residuals miss (pair_noise_floor)
     to_end = np.minimum(at, n - 1 - at)
     edge = 1.0 + 2.9 * np.exp(-to_end[:, None] / reach)  # the boundary kernel's larger variance
     gamma = np.where(fine, params.fine_threshold, params.threshold)
