@@ -74,8 +74,8 @@ class BagWriter:
     """Write a new MCAP rosbag2 bag; use as a context manager.
 
     ``BagWriter(path)`` creates the directory ``path`` (which must not exist) on
-    entry; :meth:`write` registers each topic on first use. On a clean exit the
-    bag is finalised (MCAP summary and ``metadata.yaml``); if the ``with`` body
+    entry; :meth:`write` and :meth:`write_raw` register each topic on first use.
+    On a clean exit the bag is finalised (MCAP summary and ``metadata.yaml``); if the ``with`` body
     raises, the partial bag directory is removed, so a bag on disk is always
     complete. ``compress`` selects zstd compression of MCAP chunks (readable by
     ``ros2 bag``, Foxglove and the ``mcap`` tools without extra options);
@@ -135,17 +135,46 @@ class BagWriter:
         pipeline uses the message's header stamp. Messages may be written in any
         time order; readers return them sorted.
         """
-        if not self._open:
-            raise BagError(f"{self.path}: bag is not open; use 'with BagWriter(path) as bag:'")
+        self._check_open()
         msgtype = getattr(message, "__msgtype__", None)
         if not isinstance(msgtype, str):
             raise TypeError(
                 f"BagWriter.write needs a rosbags message (from suture_common.messages), got "
                 f"{type(message).__module__}.{type(message).__name__}"
             )
+        connection, timestamp_ns = self._prepare(topic, msgtype, timestamp_ns)
+        self._writer.write(connection, timestamp_ns, TYPESTORE.serialize_cdr(message, msgtype))
+
+    def write_raw(self, topic: str, msgtype: str, cdr: bytes, timestamp_ns: int) -> None:
+        """Append an already serialised message: ``cdr`` of type ``msgtype`` on ``topic``.
+
+        ``msgtype`` is a full name like ``'sensor_msgs/msg/Image'`` known to
+        :data:`~suture_common.messages.TYPESTORE` (its schema goes into the bag);
+        ``cdr`` is the CDR serialisation with its 4-byte encapsulation header, as
+        :func:`read_raw` returns it and rclpy's ``serialize_message`` makes it. The
+        bytes are stored as given (not parsed). Same checks as :meth:`write`.
+        """
+        self._check_open()
+        if not isinstance(msgtype, str) or msgtype not in TYPESTORE.types:
+            raise ValueError(
+                f"message type {msgtype!r} is not a ROS 2 Jazzy standard message known to the bag "
+                "type store; give a full name like 'sensor_msgs/msg/Image'"
+            )
+        if not isinstance(cdr, bytes | bytearray | memoryview):
+            raise TypeError(f"cdr must be bytes (CDR with encapsulation header), got {type(cdr).__name__}")
+        if len(cdr) < 4:
+            raise ValueError(f"cdr of {len(cdr)} bytes is too short to hold the CDR encapsulation header")
+        connection, timestamp_ns = self._prepare(topic, msgtype, timestamp_ns)
+        self._writer.write(connection, timestamp_ns, bytes(cdr))
+
+    def _check_open(self) -> None:
+        if not self._open:
+            raise BagError(f"{self.path}: bag is not open; use 'with BagWriter(path) as bag:'")
+
+    def _prepare(self, topic: str, msgtype: str, timestamp_ns: int) -> tuple[Any, int]:
+        """Check ``timestamp_ns`` and ``topic``; the topic's connection, registered on first use."""
         if isinstance(timestamp_ns, bool) or not isinstance(timestamp_ns, Integral) or timestamp_ns < 0:
             raise ValueError(f"timestamp_ns must be a non-negative int (nanoseconds), got {timestamp_ns!r}")
-        timestamp_ns = int(timestamp_ns)
         if not isinstance(topic, str) or not topic.startswith("/"):
             raise ValueError(f"topic {topic!r} must be absolute (start with '/')")
         connection = self._connections.get(topic)
@@ -156,7 +185,7 @@ class BagWriter:
             raise ValueError(
                 f"topic {topic} already carries {connection.msgtype}; cannot also write {msgtype}"
             )
-        self._writer.write(connection, timestamp_ns, TYPESTORE.serialize_cdr(message, msgtype))
+        return connection, int(timestamp_ns)
 
     def close(self) -> None:
         """Finalise the bag (MCAP summary and metadata.yaml)."""

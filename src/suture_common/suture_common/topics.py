@@ -38,3 +38,47 @@ GROUND_TRUTH_TOPICS = (
     GT_GRASP_POSE,
     GT_TOPOLOGY,
 )
+
+#: Outputs of grasp_executor (its node defines the same names; DESIGN.md, "Topics").
+TARGET_POSE = "/grasp_executor/target_pose"
+EXECUTOR_STATE = "/grasp_executor/state"
+
+#: Everything the running pipeline publishes: what a recorder keeps by default.
+PIPELINE_OUTPUT_TOPICS = (
+    LEFT_MASK,
+    RIGHT_MASK,
+    LEFT_SEQUENCE,
+    RIGHT_SEQUENCE,
+    POINTS,
+    PATH,
+    GRASP_POSE,
+    MARKERS,
+    TARGET_POSE,
+    EXECUTOR_STATE,
+)
+
+#: Full message type name of every DESIGN.md topic (inputs, pipeline outputs, ground truth).
+TOPIC_TYPES: dict[str, str] = {
+    LEFT_IMAGE: "sensor_msgs/msg/Image",
+    RIGHT_IMAGE: "sensor_msgs/msg/Image",
+    LEFT_CAMERA_INFO: "sensor_msgs/msg/CameraInfo",
+    RIGHT_CAMERA_INFO: "sensor_msgs/msg/CameraInfo",
+    TIP_HINT: "geometry_msgs/msg/PointStamped",
+    LEFT_MASK: "sensor_msgs/msg/Image",
+    RIGHT_MASK: "sensor_msgs/msg/Image",
+    LEFT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
+    RIGHT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
+    POINTS: "sensor_msgs/msg/PointCloud2",
+    PATH: "nav_msgs/msg/Path",
+    GRASP_POSE: "geometry_msgs/msg/PoseStamped",
+    MARKERS: "visualization_msgs/msg/MarkerArray",
+    TARGET_POSE: "geometry_msgs/msg/PoseStamped",
+    EXECUTOR_STATE: "std_msgs/msg/String",
+    GT_LEFT_MASK: "sensor_msgs/msg/Image",
+    GT_RIGHT_MASK: "sensor_msgs/msg/Image",
+    GT_LEFT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
+    GT_RIGHT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
+    GT_PATH: "nav_msgs/msg/Path",
+    GT_GRASP_POSE: "geometry_msgs/msg/PoseStamped",
+    GT_TOPOLOGY: "std_msgs/msg/String",
+}

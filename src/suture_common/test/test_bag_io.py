@@ -310,6 +310,67 @@ def test_writer_misuse(tmp_path):
     assert bag_summary(tmp_path / "b") == {"/x": ("std_msgs/msg/String", 1)}
 
 
+def test_write_raw_copies_a_bag(bag, tmp_path):
+    """read_raw -> write_raw gives the same messages, types, timestamps and bytes."""
+    copy = tmp_path / "copy"
+    with BagWriter(copy) as out:
+        for topic, msgtype, stamp, data in read_raw(bag):
+            out.write_raw(topic, msgtype, data, stamp)
+    assert bag_summary(copy) == bag_summary(bag)
+    assert list(read_raw(copy)) == list(read_raw(bag))
+    for original, copied in zip(read_messages(bag), read_messages(copy), strict=True):
+        assert (copied.topic, copied.msgtype, copied.timestamp_ns) == (
+            original.topic,
+            original.msgtype,
+            original.timestamp_ns,
+        )
+
+
+def test_write_raw_mixes_with_write(tmp_path):
+    pose = pose_message(np.array([0.1, 0.2, 0.3]), np.array([0.0, 0.0, 0.0, 1.0]), 5, OPTICAL)
+    cdr = bytes(TYPESTORE.serialize_cdr(pose, "geometry_msgs/msg/PoseStamped"))
+    with BagWriter(tmp_path / "b") as bag:
+        bag.write_raw("/suture/grasp_pose", "geometry_msgs/msg/PoseStamped", cdr, 7)
+        bag.write("/suture/grasp_pose", pose, 8)
+        bag.write_raw("/grasp_executor/state", "std_msgs/msg/String", bytearray(b"\0\1\0\0\2\0\0\0a\0"), 9)
+    messages = list(read_messages(tmp_path / "b"))
+    assert [(m.topic, m.timestamp_ns) for m in messages] == [
+        ("/suture/grasp_pose", 7),
+        ("/suture/grasp_pose", 8),
+        ("/grasp_executor/state", 9),
+    ]
+    for message in messages[:2]:
+        position, quaternion = pose_to_arrays(message.message)
+        assert np.allclose(position, [0.1, 0.2, 0.3]) and np.allclose(quaternion, [0, 0, 0, 1])
+    assert messages[2].message.data == "a"
+
+
+def test_write_raw_misuse(tmp_path):
+    cdr = bytes(TYPESTORE.serialize_cdr(string_message("a"), "std_msgs/msg/String"))
+    writer = BagWriter(tmp_path / "b")
+    with pytest.raises(BagError, match="not open"):
+        writer.write_raw("/x", "std_msgs/msg/String", cdr, 0)
+    with writer as bag:
+        with pytest.raises(ValueError, match="not a ROS 2 Jazzy standard message"):
+            bag.write_raw("/x", "std_msgs/String", cdr, 0)
+        with pytest.raises(ValueError, match="not a ROS 2 Jazzy standard message"):
+            bag.write_raw("/x", "my_msgs/msg/Thing", cdr, 0)
+        with pytest.raises(TypeError, match="cdr must be bytes"):
+            bag.write_raw("/x", "std_msgs/msg/String", "a", 0)
+        with pytest.raises(ValueError, match="too short"):
+            bag.write_raw("/x", "std_msgs/msg/String", b"\0\1", 0)
+        with pytest.raises(ValueError, match="non-negative int"):
+            bag.write_raw("/x", "std_msgs/msg/String", cdr, -1)
+        with pytest.raises(ValueError, match="non-negative int"):
+            bag.write_raw("/x", "std_msgs/msg/String", cdr, 1.5)
+        with pytest.raises(ValueError, match="absolute"):
+            bag.write_raw("x", "std_msgs/msg/String", cdr, 0)
+        bag.write_raw("/x", "std_msgs/msg/String", cdr, 0)
+        with pytest.raises(ValueError, match="already carries std_msgs/msg/String"):
+            bag.write_raw("/x", "geometry_msgs/msg/PointStamped", cdr, 0)
+    assert bag_summary(tmp_path / "b") == {"/x": ("std_msgs/msg/String", 1)}
+
+
 @pytest.mark.parametrize("reader", [read_messages, read_raw, bag_summary])
 def test_missing_bag(tmp_path, reader):
     with pytest.raises(BagError, match="does not exist"):
