@@ -330,6 +330,8 @@ def main(args: list[str] | None = None) -> None:
     topics, which still work), and only then does ROS shut down.
     """
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # Both explicitly: a process started in the background by a script inherits SIGINT ignored.
+    signal.signal(signal.SIGINT, _interrupt)
     signal.signal(signal.SIGTERM, _interrupt)
     node = None
     try:

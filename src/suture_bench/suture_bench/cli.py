@@ -36,12 +36,11 @@ def _pair(values: tuple[float, float] | None) -> str:
     return "-" if values is None else f"{values[0]:.2f} / {values[1]:.1f}"
 
 
-def render_table(summary: dict) -> str:
+def render_table(summary: dict, title: str = "suture-eval") -> str:
     """The human-readable report of a summary: ours by topology next to the paper, then latency."""
     seg = summary["segmentation"]
     lines = [
-        f"suture-eval: {summary['frames']} frames, masks={summary['masks']}, "
-        f"sequences={summary['sequences']}",
+        f"{title}: {summary['frames']} frames, masks={summary['masks']}, sequences={summary['sequences']}",
         "",
         f"segmentation  IoU {_fmt(seg['iou'], 3)}  precision {_fmt(seg['precision'], 3)}  "
         f"recall {_fmt(seg['recall'], 3)}  F1 {_fmt(seg['f1'], 3)}    paper: {PAPER_SEGMENTATION}",

@@ -289,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"suture-graph-report: error: {error}", file=sys.stderr)
         return 1
     print()
-    print(render_table(summary))
+    print(render_table(summary, title="node graph"))
     return 0
 
 

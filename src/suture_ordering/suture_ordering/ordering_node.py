@@ -116,6 +116,7 @@ class OrderingNode(Node):
         self.create_subscription(
             CameraInfo, RIGHT_CAMERA_INFO, lambda m: self._on_camera_info("right", m), SENSOR_DATA_QOS
         )
+        self.get_logger().info(f"ordering {LEFT_MASK} and {RIGHT_MASK} from the cut tip")
 
     # ------------------------------------------------------------------ callbacks
 

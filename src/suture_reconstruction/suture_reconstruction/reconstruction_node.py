@@ -136,6 +136,7 @@ class ReconstructionNode(Node):
             lambda m: self._camera_info.__setitem__("right", m),
             SENSOR_DATA_QOS,
         )
+        self.get_logger().info(f"reconstructing {LEFT_SEQUENCE} and {RIGHT_SEQUENCE} in 3D")
 
     # ------------------------------------------------------------------ callbacks
 
