@@ -183,9 +183,13 @@ def plot_centrelines(panels: list[tuple[Frame, StageOutputs]], path: Path) -> No
             ours = 1000 * np.asarray(outputs.path)
             axes.plot(ours[:, 0], ours[:, 1], ours[:, 2], color="red", linewidth=1, label="reconstructed")
             axes.scatter(*(1000 * np.asarray(outputs.grasp)), color="red", s=20)
+        # equal scale on all axes: depth errors look as large as they are, not stretched
+        shown = true if outputs.path is None else np.vstack([true, 1000 * np.asarray(outputs.path)])
+        axes.set_box_aspect(np.maximum(np.ptp(shown, axis=0), 1.0))
         axes.set_title(frame.topology, fontsize=9)
         axes.invert_zaxis()
         axes.tick_params(labelsize=6)
+        axes.zaxis.set_major_locator(plt.MaxNLocator(2))
         if index == 0:
             axes.legend(fontsize=7, loc="upper left")
     figure.suptitle("3D centreline, left camera frame (mm): reconstructed (red) vs true (black)", fontsize=10)
