@@ -1,7 +1,7 @@
 """ordering_node: thread masks in, ordered centreline sequences out, through :func:`order_stereo`.
 
 Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data QoS),
-``/suture/tip_hint`` (geometry_msgs/PointStamped, optional, the latest is used) and
+``/suture/tip_hint`` (geometry_msgs/PointStamped, optional, matched by stamp as below) and
 ``/stereo/{left,right}/camera_info``; pairs the masks by exact ``header.stamp``
 (:class:`suture_common.stamp_buffer.StampPairBuffer`) and publishes
 ``/suture/{left,right}/sequence`` (geometry_msgs/PolygonStamped, x = u, y = v, z = 0,
@@ -13,6 +13,11 @@ Parameters: every field of :class:`suture_ordering.OrderingParams` under its own
 ``[low, high]``), plus ``max_pending`` (unmatched masks kept per side, default 10) and
 ``hint_max_age`` (s; a tip hint older than this relative to the masks is ignored, 0 =
 any age, default 0). They are read at start-up.
+
+Tip hints are kept by stamp (the last :data:`HINTS_KEPT`): masks use the hint with their own
+stamp, else the newest hint not newer than them (a hint clicked once serves the frames
+after it), else none (the automatic tip). Taking simply the latest hint went wrong whenever
+segmentation lags behind a stream: the hint of a newer frame was applied to older masks.
 
 A malformed input (wrong encoding, size mismatch, missing camera_info, empty mask, tip
 hint outside the image or NaN, a thread without free end...) drops that frame with one
@@ -49,6 +54,7 @@ from suture_ordering.params import OrderingParams
 
 NODE_NAME = "ordering_node"
 WARN_PERIOD_S = 2.0
+HINTS_KEPT = 100
 
 NODE_DEFAULTS: dict[str, Any] = {"max_pending": 10, "hint_max_age": 0.0}
 
@@ -100,7 +106,7 @@ class OrderingNode(Node):
         self.pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: StereoCamera | None = None
-        self._hint: PointStamped | None = None
+        self._hints: dict[int, PointStamped] = {}  # by stamp (ns), insertion order
         self._warnings = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)
         self.dropped: dict[str, int] = self._warnings.counts
         """Mask pairs dropped, by problem."""
@@ -125,7 +131,9 @@ class OrderingNode(Node):
         self._camera = None  # rebuilt on the next frame
 
     def _on_hint(self, message: PointStamped) -> None:
-        self._hint = message
+        self._hints[ns_from_stamp(message.header.stamp)] = message
+        if len(self._hints) > HINTS_KEPT:
+            del self._hints[next(iter(self._hints))]
 
     def _on_mask(self, side: str, message: Image) -> None:
         stamp_ns = ns_from_stamp(message.header.stamp)
@@ -156,14 +164,13 @@ class OrderingNode(Node):
         return self._camera
 
     def _tip_hint(self, stamp_ns: int) -> np.ndarray | None:
-        if self._hint is None:
+        earlier = [stamp for stamp in self._hints if stamp <= stamp_ns]
+        if not earlier:
             return None
-        if (
-            self.hint_max_age_ns > 0
-            and stamp_ns - ns_from_stamp(self._hint.header.stamp) > self.hint_max_age_ns
-        ):
+        hint_stamp = max(earlier)
+        if self.hint_max_age_ns > 0 and stamp_ns - hint_stamp > self.hint_max_age_ns:
             return None
-        point = self._hint.point
+        point = self._hints[hint_stamp].point
         return np.array([point.x, point.y], dtype=np.float64)  # NaN is reported by order_stereo
 
     def _process(self, stamp_ns: int, left: Image, right: Image) -> None:

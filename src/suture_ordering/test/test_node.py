@@ -163,3 +163,19 @@ def test_node_drops_bad_input_and_keeps_serving(ros, caplog):
     stamp = received[topics.LEFT_SEQUENCE][0].header.stamp
     assert stamp.sec * 10**9 + stamp.nanosec == good
     assert len(node.dropped) >= 4  # each problem was reported (throttled, once per kind)
+
+
+def test_masks_use_the_tip_hint_of_their_own_stamp_not_the_latest(ros):
+    """A stream where segmentation lags: hints of newer frames must not steer older masks."""
+    _executor, node, _publishers, _received = ros
+
+    def hint(stamp: int, x: float) -> None:
+        message = to_rclpy(point_message(np.array([x, 10.0, 0.0]), stamp, topics.LEFT_FRAME))
+        node._on_hint(message)
+
+    hint(STAMP, 100.0)
+    hint(STAMP + 200, 300.0)  # the hint of a later frame, arrived before the masks of STAMP
+    assert node._tip_hint(STAMP)[0] == 100.0
+    assert node._tip_hint(STAMP + 100)[0] == 100.0  # no hint of its own: the newest earlier one
+    assert node._tip_hint(STAMP + 200)[0] == 300.0
+    assert node._tip_hint(STAMP - 1) is None  # every hint is newer than these masks
