@@ -113,3 +113,23 @@ def test_command_errors_are_one_line(args: list[str], capsys: pytest.CaptureFixt
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"suture-seg {args[0]}: error:") and "\n" not in err
+
+
+def test_train_init_continues_every_layer_of_a_checkpoint(tmp_path: Path, make_folder) -> None:
+    folder = make_folder(tmp_path / "data", 4, seed=3)
+    images, masks = str(folder / "images"), str(folder / "masks")
+    first = ["train", "--images", images, "--masks", masks, "--widths", "4,4,8,8,8", *TINY]
+    assert main([*first, "--out", str(tmp_path / "a")]) == 0
+    start, _ = load_checkpoint(tmp_path / "a" / "best.pt")
+    again = ["train", "--images", images, "--masks", masks, "--init", str(tmp_path / "a" / "best.pt"), *TINY]
+    assert main([*again, "--out", str(tmp_path / "b")]) == 0
+    model, meta = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert meta["initialised_from"]["weights"].endswith("best.pt")
+    assert meta["initialised_from"]["command"].startswith("suture-seg train")
+    assert model.widths == start.widths  # the checkpoint's architecture, whatever --widths says
+    changed = [
+        name
+        for (name, a), (_, b) in zip(start.state_dict().items(), model.state_dict().items(), strict=True)
+        if a.dtype.is_floating_point and not torch.equal(a, b)
+    ]
+    assert any(name.startswith("feature_extractor") for name in changed)  # not frozen, unlike finetune
