@@ -79,8 +79,17 @@ def stamp_from_ns(ns: int) -> Any:
 
 
 def ns_from_stamp(stamp: Any) -> int:
-    """Integer nanoseconds since the epoch of a builtin_interfaces/Time (fields ``sec``, ``nanosec``)."""
-    return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    """Integer nanoseconds since the epoch of a builtin_interfaces/Time (fields ``sec``, ``nanosec``).
+
+    Raises MessageConversionError for a stamp no output could carry (negative seconds, nanosec
+    outside [0, 1e9)), so that nodes drop such input instead of failing when they publish.
+    """
+    sec, nanosec = int(stamp.sec), int(stamp.nanosec)
+    if not (0 <= sec <= _INT32_MAX and 0 <= nanosec < _NS_PER_S):
+        raise MessageConversionError(
+            f"header stamp out of range (sec {sec}, nanosec {nanosec}): need sec >= 0 and nanosec < 1e9"
+        )
+    return sec * _NS_PER_S + nanosec
 
 
 def make_header(stamp_ns: int, frame_id: str) -> Any:

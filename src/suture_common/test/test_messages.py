@@ -371,3 +371,9 @@ def test_string_round_trip():
         assert cdr_round_trip(string_message(text)).data == text
     with pytest.raises(MessageConversionError, match="str"):
         string_message(b"bytes")
+
+
+@pytest.mark.parametrize(("sec", "nanosec"), [(-1, 0), (5, 1_000_000_000), (2147483647, 4294967295)])
+def test_stamps_no_output_could_carry_are_refused(sec, nanosec):
+    with pytest.raises(MessageConversionError, match="header stamp out of range"):
+        ns_from_stamp(SimpleNamespace(sec=sec, nanosec=nanosec))

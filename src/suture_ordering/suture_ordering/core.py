@@ -89,6 +89,14 @@ class _Prepared:
 
 def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Prepared:
     binary = as_binary_mask(mask, view)
+    fraction = float(binary.mean())
+    if fraction > params.max_mask_fraction:
+        raise InvalidInputError(
+            f"mask covers {100 * fraction:.0f} % of the image, more than max_mask_fraction "
+            f"({100 * params.max_mask_fraction:.0f} %): not a thread mask (noise, a wrong threshold "
+            "or encoding?)",
+            view,
+        )
     scaled = ScaledParams.from_params(params, binary.shape[1])
     pad = scaled.max_reach + scaled.step_radius + 3
     clean = clean_mask(binary, scaled, int(params.zone_margin_px), pad, view)

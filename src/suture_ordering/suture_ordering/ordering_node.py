@@ -131,12 +131,20 @@ class OrderingNode(Node):
         self._camera = None  # rebuilt on the next frame
 
     def _on_hint(self, message: PointStamped) -> None:
-        self._hints[ns_from_stamp(message.header.stamp)] = message
+        try:
+            self._hints[ns_from_stamp(message.header.stamp)] = message
+        except MessageConversionError as exc:
+            self._warnings.warn("bad_stamp", f"dropped tip hint: {exc}")
+            return
         if len(self._hints) > HINTS_KEPT:
             del self._hints[next(iter(self._hints))]
 
     def _on_mask(self, side: str, message: Image) -> None:
-        stamp_ns = ns_from_stamp(message.header.stamp)
+        try:
+            stamp_ns = ns_from_stamp(message.header.stamp)
+        except MessageConversionError as exc:
+            self._warnings.warn("bad_stamp", f"dropped {side} mask: {exc}")
+            return
         paired = self.pairer.add(side, stamp_ns, message)
         if paired is not None:
             left, right = paired

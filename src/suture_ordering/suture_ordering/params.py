@@ -58,6 +58,9 @@ class OrderingParams:
     tau_o_factor: float = 2.6
     #: τ_V: candidates turning by δ >= τ_V are not admissible (rad).
     tau_v: float = 2.0 * math.pi / 3.0
+    #: Largest share of the image a mask may cover: a thread covers a few percent; more is noise,
+    #: a wrong threshold or encoding, and ordering it would take minutes (InvalidInputError).
+    max_mask_fraction: float = 0.15
     #: Measure δ from the direction predicted by the thread's curvature (the last chord turned
     #: by the last turn) instead of the last chord alone (the paper's literal Eq. 4).
     curvature_prediction: bool = True
@@ -103,6 +106,7 @@ class OrderingParams:
             "mu",
             "tau_o_factor",
             "tau_v",
+            "max_mask_fraction",
             "bridge_turn_max",
             "bridge_bend_max",
             "min_crossing_angle",

@@ -303,3 +303,12 @@ def test_sample_bag_frames_are_ordered_like_the_ground_truth():
             assert np.hypot(*(points[0] - truth[0])) <= 5.0
             assert np.percentile(distance, 99) <= 3.0
             assert index.max() >= 0.9 * len(truth)
+
+
+def test_noise_masks_are_refused_at_once_instead_of_ordered_for_minutes():
+    """A speckle or all-white mask is not a thread: refused in milliseconds, with the reason."""
+    camera = StereoCamera.default(640, 480)
+    speckle = (np.random.default_rng(0).random((480, 640)) < 0.5).astype(np.uint8) * 255
+    for mask in (speckle, np.full((480, 640), 255, np.uint8)):
+        with pytest.raises(InvalidInputError, match="max_mask_fraction"):
+            order_stereo(mask, mask, None, camera)

@@ -29,8 +29,9 @@ both call. Steps (paper Section II.B end and II.C):
 6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``).
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
-(InvalidSequenceError, TooFewPointsError, NoStereoOverlapError,
-ThreadTooShortError) and ``suture_common.camera.CameraModelError`` for an
+(InvalidSequenceError, also for points outside the image or an implausibly long
+sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
+NoStereoOverlapError, ThreadTooShortError) and ``suture_common.camera.CameraModelError`` for an
 unusable camera.
 """
 
@@ -53,7 +54,7 @@ from suture_reconstruction.pairing import (
     pair_sequences,
     regularise_disparity,
 )
-from suture_reconstruction.sequences import as_sequence, resample, smooth_sequence
+from suture_reconstruction.sequences import as_sequence, check_plausible, resample, smooth_sequence
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 
 
@@ -181,6 +182,8 @@ def reconstruct(
     clock = time.perf_counter()
     left_raw = as_sequence(left_sequence, "left", params.min_points)
     right_raw = as_sequence(right_sequence, "right", params.min_points)
+    check_plausible(left_raw, camera.width, camera.height, "left")
+    check_plausible(right_raw, camera.width, camera.height, "right")
 
     left = resample(smooth_sequence(left_raw, params.smoothing_window), 1.0, params.max_jump_px)
     right = resample(smooth_sequence(right_raw, params.smoothing_window), 1.0, params.max_jump_px)

@@ -141,7 +141,11 @@ class ReconstructionNode(Node):
     # ------------------------------------------------------------------ callbacks
 
     def _on_sequence(self, side: str, message: PolygonStamped) -> None:
-        stamp = ns_from_stamp(message.header.stamp)
+        try:
+            stamp = ns_from_stamp(message.header.stamp)
+        except MessageConversionError as exc:
+            self._drop("bad_stamp", f"dropped {side} sequence: {exc}")
+            return
         try:
             sequence = polygon_to_array(message)
         except MessageConversionError as exc:

@@ -48,6 +48,41 @@ def as_sequence(sequence: np.ndarray, name: str, min_points: int) -> np.ndarray:
     return array
 
 
+#: Image margin (fraction of the width/height) within which sequence points must lie.
+IMAGE_MARGIN = 0.1
+#: Longest plausible sequence, in image half-perimeters (W + H): a 150 mm thread at the nearest
+#: working depth spans about 3 (W + H)/2; scattered points or garbage are far longer and would
+#: cost minutes in the shape graph (its work grows faster than linearly with the length).
+MAX_LENGTH_HALF_PERIMETERS = 4.0
+
+
+def check_plausible(sequence: np.ndarray, width: int, height: int, name: str) -> None:
+    """Raise InvalidSequenceError unless the (N, 2) ``sequence`` could be a thread in a WxH image.
+
+    Every point must lie within the image (plus :data:`IMAGE_MARGIN`), and the polyline may be at
+    most :data:`MAX_LENGTH_HALF_PERIMETERS` x (W + H) pixels long.
+    """
+    margin_u, margin_v = IMAGE_MARGIN * width, IMAGE_MARGIN * height
+    outside = (
+        (sequence[:, 0] < -margin_u)
+        | (sequence[:, 0] > width + margin_u)
+        | (sequence[:, 1] < -margin_v)
+        | (sequence[:, 1] > height + margin_v)
+    )
+    if outside.any():
+        raise InvalidSequenceError(
+            f"{name} sequence has {int(outside.sum())} points outside the {width}x{height} image "
+            f"(first {sequence[np.argmax(outside)].round(1).tolist()}); pixels must be u, v in the image"
+        )
+    length = float(np.hypot(*np.diff(sequence, axis=0).T).sum())
+    limit = MAX_LENGTH_HALF_PERIMETERS * (width + height)
+    if length > limit:
+        raise InvalidSequenceError(
+            f"{name} sequence is {length:.0f} px long, more than {limit:.0f} px "
+            f"({MAX_LENGTH_HALF_PERIMETERS:g} x (W + H)): not an ordered thread centreline"
+        )
+
+
 def smooth_sequence(points: np.ndarray, window: int) -> np.ndarray:
     """Savitzky-Golay smoothing (quadratic, ``window`` samples) of an (N, 2) sequence along its index.
 

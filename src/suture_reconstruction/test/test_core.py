@@ -141,9 +141,13 @@ def test_nan_and_bad_shapes(make_scene):
 
 def test_no_overlap_between_the_views(make_scene):
     scene = make_scene()
-    elsewhere = scene.right + np.array([0.0, 400.0])  # rows the left thread never reaches
+    # the upper half of the thread on the left, the lower half on the right: no common rows
+    middle = np.median(scene.left[:, 1])
+    upper, lower = scene.left[scene.left[:, 1] < middle - 5], scene.right[scene.right[:, 1] > middle + 5]
     with pytest.raises(NoStereoOverlapError, match="epipolar"):
-        reconstruct(scene.left, elsewhere, scene.camera)
+        reconstruct(upper, lower, scene.camera)
+    with pytest.raises(InvalidSequenceError, match="outside"):
+        reconstruct(scene.left, scene.right + np.array([0.0, 400.0]), scene.camera)
     swapped = scene.right + np.array([200.0, 0.0])  # disparities far outside 45-165 mm
     with pytest.raises(NoStereoOverlapError):
         reconstruct(scene.left, swapped, scene.camera)
@@ -188,3 +192,20 @@ def test_parameters():
         ReconstructionParams().replace(tau_l=-1.0)
     with pytest.raises(ValueError):
         ReconstructionParams().replace(min_depth=0.2, max_depth=0.1)
+
+
+@pytest.mark.parametrize(
+    ("what", "make"),
+    [
+        # 3000 points scattered over the image: Algorithm 1 would work for minutes on it
+        ("px long", lambda rng: np.column_stack([rng.uniform(0, 640, 3000), rng.uniform(0, 480, 3000)])),
+        # astronomically far points: resampling them every pixel would need petabytes
+        ("outside the 640x480 image", lambda rng: np.full((50, 2), 1e30)),
+    ],
+)
+def test_garbage_sequences_are_refused_at_once(what, make):
+    rng = np.random.default_rng(4)
+    camera = StereoCamera.default(640, 480)
+    left = make(rng)
+    with pytest.raises(InvalidSequenceError, match=what):
+        reconstruct(left, left - [20.0, 0.0], camera)

@@ -126,7 +126,11 @@ class SegmentationNode(Node):
     # ------------------------------------------------------------------ callbacks
 
     def _on_image(self, side: str, message: Image) -> None:
-        stamp_ns = ns_from_stamp(message.header.stamp)
+        try:
+            stamp_ns = ns_from_stamp(message.header.stamp)
+        except MessageConversionError as exc:
+            self._warnings.warn("bad_stamp", f"dropped {side} image: {exc}")
+            return
         paired = self.pairer.add(side, stamp_ns, message)
         if paired is not None:
             self.process(stamp_ns, *paired)
