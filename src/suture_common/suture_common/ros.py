@@ -131,9 +131,12 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     """
     rclpy.init(args=args)
     node = None
+    executor = None
     try:
-        node = make_node()
+        # the executor before the node: once the node has logged that it is up, a Ctrl-C finds
+        # everything built (an interrupt inside the executor's constructor leaves a broken object)
         executor = SingleThreadedExecutor()
+        node = make_node()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -147,6 +150,10 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         # rclpy's SIGINT handler ends spin() and Python may raise KeyboardInterrupt here too;
         # a second Ctrl-C skips the clean-up.
         with contextlib.suppress(KeyboardInterrupt):
+            # the executor first: its SIGINT guard condition must go before the context does,
+            # or its finaliser prints a traceback at exit
+            if executor is not None:
+                executor.shutdown()
             if node is not None:
                 node.destroy_node()
         rclpy.try_shutdown()
