@@ -48,22 +48,19 @@ import sys
 import time
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class
 from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
+from suture_replay.node_main import run_until_stopped
 from suture_replay.replay import (
     IMAGE_TYPES,
     FrameRecord,
     PlannedFrame,
     PlayerSettings,
-    StopSignals,
     build_report,
     load_frames,
     plan,
@@ -302,36 +299,14 @@ class PlayerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_replay player_node --ros-args -p bag:=BAG``: replay, report, exit status."""
-    with StopSignals() as stop:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        try:
-            return _play(stop)
-        finally:
-            rclpy.try_shutdown()
-
-
-def _play(stop: StopSignals) -> int:
-    try:
-        node = PlayerNode()
-    except ValueError as exc:
-        print(f"{EXECUTABLE}: {exc}", file=sys.stderr)
-        return 1
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        try:
-            while stop.received is None and not node.finished:
-                executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
-        node.finish()
-    except OSError as exc:
-        print(f"{EXECUTABLE}: cannot write report {node.settings.report}: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-    return 0
+    return run_until_stopped(
+        PlayerNode,
+        EXECUTABLE,
+        args,
+        finished=lambda node: node.finished,
+        finish=lambda node: node.finish(),
+        finish_error=lambda node, exc: f"cannot write report {node.settings.report}: {exc}",
+    )
 
 
 if __name__ == "__main__":

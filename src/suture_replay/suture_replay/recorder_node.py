@@ -26,17 +26,15 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 
 from suture_common.bag_io import BagWriter
 from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, message_class
 from suture_common.topics import PIPELINE_OUTPUT_TOPICS
-from suture_replay.replay import IMAGE_TYPES, RecorderSettings, StopSignals
+from suture_replay.node_main import run_until_stopped
+from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 
 NODE_NAME = "recorder"
 EXECUTABLE = "recorder_node"
@@ -139,36 +137,14 @@ class RecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_replay recorder_node --ros-args -p output:=BAG``: record until SIGINT/SIGTERM."""
-    with StopSignals() as stop:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-        try:
-            return _record(stop)
-        finally:
-            rclpy.try_shutdown()
-
-
-def _record(stop: StopSignals) -> int:
-    try:
-        node = RecorderNode()
-    except ValueError as exc:
-        print(f"{EXECUTABLE}: {exc}", file=sys.stderr)
-        return 1
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        try:
-            while stop.received is None:
-                executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
-        node.close()
-    except OSError as exc:
-        print(f"{EXECUTABLE}: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-    return 0
+    return run_until_stopped(
+        RecorderNode,
+        EXECUTABLE,
+        args,
+        finished=lambda node: False,
+        finish=lambda node: node.close(),
+        finish_error=lambda node, exc: str(exc),
+    )
 
 
 if __name__ == "__main__":
