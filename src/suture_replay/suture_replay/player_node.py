@@ -48,14 +48,13 @@ import sys
 import time
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class
 from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
-from suture_replay.node_main import run_until_stopped
+from suture_replay.node_main import declare_parameters, run_until_stopped
 from suture_replay.replay import (
     IMAGE_TYPES,
     FrameRecord,
@@ -111,12 +110,7 @@ class PlayerNode(Node):
             raise
 
     def _setup(self) -> None:
-        values = {}
-        for name, (default, description) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
-            values[name] = self.declare_parameter(name, default, descriptor).value
-        if isinstance(values["topics"], str):
-            values["topics"] = [values["topics"]]
+        values = declare_parameters(self, PARAMETERS)
         self.settings = settings = PlayerSettings(**values)  # ValueError on a bad value
         output_type = TOPIC_TYPES.get(settings.output_topic, DEFAULT_OUTPUT_TYPE)
         output_class = message_class(output_type)

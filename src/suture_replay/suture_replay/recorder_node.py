@@ -26,14 +26,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from suture_common.bag_io import BagWriter
 from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, message_class
 from suture_common.topics import PIPELINE_OUTPUT_TOPICS
-from suture_replay.node_main import run_until_stopped
+from suture_replay.node_main import declare_parameters, run_until_stopped
 from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 
 NODE_NAME = "recorder"
@@ -73,12 +72,7 @@ class RecorderNode(Node):
             raise
 
     def _setup(self) -> None:
-        values = {}
-        for name, (default, description) in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
-            values[name] = self.declare_parameter(name, default, descriptor).value
-        if isinstance(values["topics"], str):
-            values["topics"] = [values["topics"]]
+        values = declare_parameters(self, PARAMETERS)
         self.settings = settings = RecorderSettings(**values)  # ValueError on a bad value
         classes = {topic: message_class(msgtype) for topic, msgtype in settings.types.items()}
 
