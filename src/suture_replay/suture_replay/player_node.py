@@ -24,9 +24,11 @@ Parameters (read at start-up; numbers accept ints or doubles):
 - ``loops`` (int, default 1): replay the bag this many times; loop k shifts header stamps
   and the schedule by k * (bag span + median frame period).
 - ``start_timeout`` (double s, default 15.0): before the first frame, wait until every
-  image topic has a subscriber and ``output_topic`` a publisher, at most this long, then
+  image topic has a subscriber, every subscriber the graph knows of on the replayed topics
+  is matched, and ``output_topic`` has a publisher, at most this long, then
   start anyway with a warning naming what is missing; the first frame follows
-  :data:`SETTLE_S` later (a best-effort sample sent at discovery can be lost).
+  :data:`SETTLE_S` later (a best-effort sample sent at discovery can be lost); the
+  first frame's camera_info goes out at once as well, as from a running camera driver.
 - ``linger`` (double s, default 1.0): after the last frame, keep receiving outputs this
   long (with ``wait_for_output``: until the last frame's output or ``wait_timeout``).
 - ``report`` (string, default ""): JSON report file to write (see
@@ -179,6 +181,13 @@ class PlayerNode(Node):
             for topic in self._image_topics
             if self._frame_publishers[topic].get_subscription_count() < 1
         ]
+        # every subscriber the graph already knows of must be matched too (e.g. camera_info of the
+        # ordering and reconstruction nodes), or the first frame's messages can miss it
+        missing += [
+            f"a match with every subscriber on {topic}"
+            for topic, publisher in self._frame_publishers.items()
+            if publisher.get_subscription_count() < self.count_subscribers(topic)
+        ]
         if self.count_publishers(self.settings.output_topic) < 1:
             missing.append(f"a publisher on {self.settings.output_topic}")
         return missing
@@ -196,7 +205,10 @@ class PlayerNode(Node):
                     f"starting after {self.settings.start_timeout:g} s without {', '.join(missing)}"
                 )
             # Matched is not yet ready: a best-effort sample sent right after discovery can be
-            # lost while the subscriber's transport is still being set up, so let it settle.
+            # lost while the subscriber's transport is still being set up, so let it settle, and
+            # send the first frame's camera_info now too, as a camera driver would have been
+            # doing all along: a node that lost it would drop the first frame for want of it.
+            self._prime_camera_info()
             self._phase = "settling"
             self._arm(SETTLE_S)
         elif self._phase == "settling":
@@ -240,6 +252,17 @@ class PlayerNode(Node):
         self._pending = planned.stamp_ns
         self._publish(planned)
         self._arm(self.settings.wait_timeout)
+
+    def _prime_camera_info(self) -> None:
+        first = self._plan[0] if self._plan else None
+        if first is None:
+            return
+        sec, nanosec = divmod(first.stamp_ns, 1_000_000_000)
+        for publisher, message, stamped, _ in self._messages[first.frame_index]:
+            if message.__class__.__name__ == "CameraInfo":
+                if stamped:
+                    message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
+                publisher.publish(message)
 
     def _publish(self, planned: PlannedFrame) -> None:
         sec, nanosec = divmod(planned.stamp_ns, 1_000_000_000)
