@@ -48,13 +48,14 @@ from grasp_executor.handeye import HandEye, load_hand_eye
 from grasp_executor.keypoints import KeypointConfig, KeypointRecord, append_keypoint_csv
 from grasp_executor.planning import GraspConfig
 from grasp_executor.safety import SafetyGate, SafetyLimits
+from suture_common import topics
 from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
 from suture_common.ros import RELIABLE_QOS, to_rclpy
 from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
 
 NODE_NAME = "grasp_executor"
-TARGET_POSE = "/grasp_executor/target_pose"
-STATE = "/grasp_executor/state"
+TARGET_POSE = topics.TARGET_POSE
+STATE = topics.EXECUTOR_STATE
 EXECUTE = "/grasp_executor/execute"
 VISIT_KEYPOINTS = "/grasp_executor/visit_keypoints"
 ABORT = "/grasp_executor/abort"

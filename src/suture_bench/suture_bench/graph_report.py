@@ -47,7 +47,7 @@ from suture_common import messages, topics
 from suture_common.bag_io import read_messages
 from suture_ordering.figures import draw_sequence
 
-TARGET_POSE = "/grasp_executor/target_pose"
+TARGET_POSE = topics.TARGET_POSE
 OUTPUT_TOPICS = (
     topics.LEFT_MASK,
     topics.RIGHT_MASK,

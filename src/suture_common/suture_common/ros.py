@@ -22,7 +22,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
 
-from suture_common.messages import TYPESTORE
+from suture_common.messages import TYPESTORE, MessageConversionError, ns_from_stamp
 
 SENSOR_DATA_QOS: QoSProfile = qos_profile_sensor_data
 """Images: best effort, keep last 5, volatile (rclpy's sensor-data profile)."""
@@ -119,6 +119,19 @@ class ThrottledWarnings:
         self._last[reason] = now
         self.logger.warning(text)
         return True
+
+
+def stamp_or_drop(message: Any, drop: Callable[[str, str], object], what: str) -> int | None:
+    """The header stamp (ns) of ``message``, or None after ``drop("bad_stamp", text)``.
+
+    ``drop`` is the node's per-reason warning, e.g. :meth:`ThrottledWarnings.warn`; a stamp no
+    output could carry (see :func:`suture_common.messages.ns_from_stamp`) drops ``what``.
+    """
+    try:
+        return ns_from_stamp(message.header.stamp)
+    except MessageConversionError as exc:
+        drop("bad_stamp", f"dropped {what}: {exc}")
+        return None
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:

@@ -36,8 +36,15 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from suture_common.camera import CameraModelError, StereoCamera
-from suture_common.messages import MessageConversionError, image_to_array, ns_from_stamp, polygon_message
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_rclpy
+from suture_common.messages import MessageConversionError, image_to_array, polygon_message
+from suture_common.ros import (
+    RELIABLE_QOS,
+    SENSOR_DATA_QOS,
+    ThrottledWarnings,
+    run_node,
+    stamp_or_drop,
+    to_rclpy,
+)
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     LEFT_CAMERA_INFO,
@@ -131,19 +138,16 @@ class OrderingNode(Node):
         self._camera = None  # rebuilt on the next frame
 
     def _on_hint(self, message: PointStamped) -> None:
-        try:
-            self._hints[ns_from_stamp(message.header.stamp)] = message
-        except MessageConversionError as exc:
-            self._warnings.warn("bad_stamp", f"dropped tip hint: {exc}")
+        stamp_ns = stamp_or_drop(message, self._warnings.warn, "tip hint")
+        if stamp_ns is None:
             return
+        self._hints[stamp_ns] = message
         if len(self._hints) > HINTS_KEPT:
             del self._hints[next(iter(self._hints))]
 
     def _on_mask(self, side: str, message: Image) -> None:
-        try:
-            stamp_ns = ns_from_stamp(message.header.stamp)
-        except MessageConversionError as exc:
-            self._warnings.warn("bad_stamp", f"dropped {side} mask: {exc}")
+        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} mask")
+        if stamp_ns is None:
             return
         paired = self.pairer.add(side, stamp_ns, message)
         if paired is not None:

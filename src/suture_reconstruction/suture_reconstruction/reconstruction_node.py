@@ -38,12 +38,18 @@ from visualization_msgs.msg import Marker, MarkerArray
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.messages import (
     MessageConversionError,
-    ns_from_stamp,
     path_message,
     polygon_to_array,
     pose_message,
 )
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_rclpy
+from suture_common.ros import (
+    RELIABLE_QOS,
+    SENSOR_DATA_QOS,
+    ThrottledWarnings,
+    run_node,
+    stamp_or_drop,
+    to_rclpy,
+)
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     GRASP_POSE,
@@ -141,10 +147,8 @@ class ReconstructionNode(Node):
     # ------------------------------------------------------------------ callbacks
 
     def _on_sequence(self, side: str, message: PolygonStamped) -> None:
-        try:
-            stamp = ns_from_stamp(message.header.stamp)
-        except MessageConversionError as exc:
-            self._drop("bad_stamp", f"dropped {side} sequence: {exc}")
+        stamp = stamp_or_drop(message, self._drop, f"{side} sequence")
+        if stamp is None:
             return
         try:
             sequence = polygon_to_array(message)

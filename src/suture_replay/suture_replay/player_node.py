@@ -53,6 +53,7 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo
 
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class
 from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
@@ -259,7 +260,7 @@ class PlayerNode(Node):
             return
         sec, nanosec = divmod(first.stamp_ns, 1_000_000_000)
         for publisher, message, stamped, _ in self._messages[first.frame_index]:
-            if message.__class__.__name__ == "CameraInfo":
+            if isinstance(message, CameraInfo):
                 if stamped:
                     message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
                 publisher.publish(message)

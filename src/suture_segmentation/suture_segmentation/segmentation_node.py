@@ -40,9 +40,8 @@ from suture_common.messages import (
     MessageConversionError,
     image_message,
     image_to_array,
-    ns_from_stamp,
 )
-from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, run_node, to_rclpy
+from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, run_node, stamp_or_drop, to_rclpy
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import LEFT_IMAGE, LEFT_MASK, RIGHT_IMAGE, RIGHT_MASK
 from suture_segmentation.checkpoint import WeightsError
@@ -126,10 +125,8 @@ class SegmentationNode(Node):
     # ------------------------------------------------------------------ callbacks
 
     def _on_image(self, side: str, message: Image) -> None:
-        try:
-            stamp_ns = ns_from_stamp(message.header.stamp)
-        except MessageConversionError as exc:
-            self._warnings.warn("bad_stamp", f"dropped {side} image: {exc}")
+        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} image")
+        if stamp_ns is None:
             return
         paired = self.pairer.add(side, stamp_ns, message)
         if paired is not None:
