@@ -75,7 +75,10 @@ Junctions (crossings, the thread's own loops, touching threads).
     straight (the arm opposite ours in angular order), otherwise the arm that
     continues the thread like one arc wins; the step is a Hermite curve to that
     arm. If every arm bends sharply, the thread ends there (it ends on another
-    strand).
+    strand). Our tangent there is the last steps' track unless the path over the
+    last Υ (the circle through the points Υ and Υ/2 back and the vertex) points more
+    than 5° elsewhere: on a segmenter's mask the step into a junction is often pulled
+    towards the other strand.
 
 Termination.
     The search ends when no admissible node (not detected, O < τ_O, δ < τ_V)
@@ -117,6 +120,7 @@ class _Stop:
 
 _STOP = _Stop()
 _TAIL_MAX_TURN = math.pi / 3
+_PULLED_TURN = math.radians(5.0)
 
 
 @dataclass(frozen=True)
@@ -536,12 +540,17 @@ class Searcher:
         decides on the near nodes as usual).
         """
         vertex = branch.vertices[-1]
-        tangent = self._tangent_at_vertex(branch)
         radius = self.scaled.roi_radius
+        tangent = self._junction_tangent(branch, radius)
         far = self._nodes(vertex, radius, None)  # one node per arm: merged arms stay one
         if far is None or tangent is None:
             return None
-        free = np.flatnonzero(consumed_flat[self._flat(far.position)] == 0)
+        free = consumed_flat[self._flat(far.position)] == 0
+        entry = self._entry_point(branch, radius)
+        if entry is not None:  # our own arm, even where the mask runs a few px beside our path
+            width = self._thread_width(branch) or 1.0
+            free &= np.hypot(*(far.position - entry).T) > max(3.0, 1.5 * width)
+        free = np.flatnonzero(free)
         points = far.position[free]
         tangents = [self._tangent(p, p - vertex, consumed_flat) for p in points]
         ahead = self._turn(points - vertex, heading) < self.params.tau_v
@@ -603,6 +612,31 @@ class Searcher:
         )
 
     # ------------------------------------------------------------------ one step
+
+    @staticmethod
+    def _entry_point(branch: _Branch, radius: float) -> np.ndarray | None:
+        """Where the path traversed so far last enters the circle of ``radius`` around the vertex."""
+        vertex = branch.vertices[-1]
+        for segment in reversed(branch.segments):
+            outside = np.flatnonzero(np.hypot(*(segment - vertex).T) >= radius)
+            if outside.size:
+                return segment[outside[-1]]
+        return None
+
+    def _junction_tangent(self, branch: _Branch, radius: float) -> np.ndarray | None:
+        """Our thread's tangent at a junction's vertex, from the path over the last ``radius`` px.
+
+        The step that reached the junction is often pulled towards the other strand (the merged
+        cross-section's nodes are biased), so the tangent of the circle through the path points
+        ``radius`` and ``radius / 2`` back and the vertex is used instead of the last steps' track.
+        """
+        track = self._tangent_at_vertex(branch)
+        far, mid = self._entry_point(branch, radius), self._entry_point(branch, radius / 2)
+        if far is None or mid is None or track is None:
+            return track
+        chord = branch.vertices[-1] - mid
+        path = _rotate(chord, _signed_angle(mid - far, chord) / 2)
+        return path if abs(_signed_angle(track, path)) > _PULLED_TURN else track
 
     def _predicted(self, branch: _Branch) -> np.ndarray | None:
         """Direction δ is measured from: the thread's track turned by its last turn."""

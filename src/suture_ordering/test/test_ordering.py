@@ -326,3 +326,17 @@ def test_noise_masks_are_refused_at_once_instead_of_ordered_for_minutes():
     for mask in (speckle, np.full((480, 640), 255, np.uint8)):
         with pytest.raises(InvalidInputError, match="max_mask_fraction"):
             order_stereo(mask, mask, None, camera)
+
+
+# --------------------------------------------------------------------------- predicted masks
+
+
+def test_a_predicted_mask_is_followed_straight_across_a_crossing():
+    """A segmenter's mask of a simulated frame (fresh set seed 707, frame 48): the last step
+    before the crossing is pulled towards the other strand, and the tangent of that step alone
+    made every arm look like a sharp turn, so the sequence ended at the crossing (194 of the
+    thread's 410 points); the tangent of the path over the last Υ crosses it."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_crossing.npz")
+    mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
+    result = order_sequence(mask, stored["hint"])
+    check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
