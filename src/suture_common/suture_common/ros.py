@@ -27,6 +27,17 @@ from suture_common.messages import TYPESTORE, MessageConversionError, ns_from_st
 SENSOR_DATA_QOS: QoSProfile = qos_profile_sensor_data
 """Images: best effort, keep last 5, volatile (rclpy's sensor-data profile)."""
 
+
+def sensor_data_qos(depth: int) -> QoSProfile:
+    """:data:`SENSOR_DATA_QOS` keeping the last ``depth`` messages (>= 1; ValueError otherwise)."""
+    if depth < 1:
+        raise ValueError(f"queue depth must be at least 1, got {depth}")
+    sensor = qos_profile_sensor_data
+    return QoSProfile(
+        depth=depth, history=sensor.history, reliability=sensor.reliability, durability=sensor.durability
+    )
+
+
 RELIABLE_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 """Poses, sequences, commands: reliable, keep last 10, volatile."""
 

@@ -1,7 +1,9 @@
 """segmentation_node: rectified stereo images in, suture masks out, through :meth:`Segmenter.segment_pair`.
 
 Subscribes ``/stereo/left/image_rect`` and ``/stereo/right/image_rect`` (sensor_msgs/Image,
-rgb8, bgr8 or mono8, sensor-data QoS), pairs them by exact ``header.stamp``
+rgb8, bgr8 or mono8, sensor-data QoS keeping the last ``queue_depth`` images: by default only
+the newest, so that a node slower than the camera segments the current frame, not a queue of
+stale ones), pairs them by exact ``header.stamp``
 (:class:`suture_common.stamp_buffer.StampPairBuffer`), segments both views as one batch and
 publishes ``/suture/left/mask`` and ``/suture/right/mask`` (sensor_msgs/Image mono8, 0 or 255,
 the header of the input image of that side, sensor-data QoS). bgr8 images are reordered to RGB
@@ -41,7 +43,14 @@ from suture_common.messages import (
     image_message,
     image_to_array,
 )
-from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, run_node, stamp_or_drop, to_rclpy
+from suture_common.ros import (
+    SENSOR_DATA_QOS,
+    ThrottledWarnings,
+    run_node,
+    sensor_data_qos,
+    stamp_or_drop,
+    to_rclpy,
+)
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import LEFT_IMAGE, LEFT_MASK, RIGHT_IMAGE, RIGHT_MASK
 from suture_segmentation.checkpoint import WeightsError
@@ -58,6 +67,11 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "input_height": (0, "height the images are resized to for inference (0 with input_width 0: own size)"),
     "threads": (0, "CPU threads of the backend (0: the runtime's default)"),
     "max_pending": (10, "unmatched images kept per side while waiting for the other view"),
+    "queue_depth": (
+        1,
+        "images queued per camera while the node is busy: 1 = always the newest frame (bounded "
+        "latency when images come faster than they are segmented); more = every frame, later",
+    ),
     "log_throttle": (2.0, "seconds between two warnings for the same problem"),
 }
 """Declared parameters: name -> (default, description)."""
@@ -115,8 +129,9 @@ class SegmentationNode(Node):
 
         self._left_pub = self.create_publisher(Image, LEFT_MASK, SENSOR_DATA_QOS)
         self._right_pub = self.create_publisher(Image, RIGHT_MASK, SENSOR_DATA_QOS)
-        self.create_subscription(Image, LEFT_IMAGE, lambda m: self._on_image("left", m), SENSOR_DATA_QOS)
-        self.create_subscription(Image, RIGHT_IMAGE, lambda m: self._on_image("right", m), SENSOR_DATA_QOS)
+        images_qos = sensor_data_qos(int(values["queue_depth"]))  # ValueError below 1
+        self.create_subscription(Image, LEFT_IMAGE, lambda m: self._on_image("left", m), images_qos)
+        self.create_subscription(Image, RIGHT_IMAGE, lambda m: self._on_image("right", m), images_qos)
         self.get_logger().info(
             f"segmenting {LEFT_IMAGE} and {RIGHT_IMAGE} with {self.segmenter.weights} "
             f"({self.segmenter.backend} on {self.segmenter.device})"

@@ -12,6 +12,7 @@ other tests use a small random checkpoint written to a temporary folder.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -252,9 +253,27 @@ def test_unloadable_weights_stop_the_node_with_one_line(problem, tmp_path, monke
     assert ("does not exist" if problem == "missing" else "not a readable checkpoint") in lines[0]
 
 
+@pytest.mark.parametrize(("queue_depth", "expected"), [(1, 1), (4, 4)])
+def test_queue_depth_bounds_the_images_waiting(context, random_weights, queue_depth, expected):
+    # Four pairs arrive while the node is busy (not spinning): by default it then segments only
+    # the newest, so a node slower than the camera works on the current frame.
+    harness = Harness(context, weights=str(random_weights), queue_depth=queue_depth)
+    try:
+        stamps = [STAMP + k * 100_000_000 for k in range(4)]
+        for stamp in stamps:
+            harness.send(_image(stamp, topics.LEFT_FRAME), _image(stamp, topics.RIGHT_FRAME))
+        time.sleep(0.5)  # delivered into the subscriptions' queues, not yet taken
+        assert spin_until(harness.executor, lambda: harness.has_masks(stamps[-1]), TIMEOUT)
+        spin_until(harness.executor, lambda: False, 0.5)
+        assert sorted(harness.masks["left"]) == stamps[-expected:]
+    finally:
+        harness.close()
+
+
 @pytest.mark.parametrize(
     ("overrides", "match"),
     [
+        ({"queue_depth": 0}, "queue depth"),
         ({"input_width": 320}, "input_width and input_height"),
         ({"threads": -1}, "threads"),
         ({"threshold": 1.5}, "threshold"),
