@@ -545,12 +545,7 @@ class Searcher:
         far = self._nodes(vertex, radius, None)  # one node per arm: merged arms stay one
         if far is None or tangent is None:
             return None
-        free = consumed_flat[self._flat(far.position)] == 0
-        entry = self._entry_point(branch, radius)
-        if entry is not None:  # our own arm, even where the mask runs a few px beside our path
-            width = self._thread_width(branch) or 1.0
-            free &= np.hypot(*(far.position - entry).T) > max(3.0, 1.5 * width)
-        free = np.flatnonzero(free)
+        free = np.flatnonzero(consumed_flat[self._flat(far.position)] == 0)
         points = far.position[free]
         tangents = [self._tangent(p, p - vertex, consumed_flat) for p in points]
         ahead = self._turn(points - vertex, heading) < self.params.tau_v
@@ -627,8 +622,9 @@ class Searcher:
         """Our thread's tangent at a junction's vertex, from the path over the last ``radius`` px.
 
         The step that reached the junction is often pulled towards the other strand (the merged
-        cross-section's nodes are biased), so the tangent of the circle through the path points
-        ``radius`` and ``radius / 2`` back and the vertex is used instead of the last steps' track.
+        cross-section's nodes are biased): when the tangent of the circle through the path points
+        ``radius`` and ``radius / 2`` back and the vertex differs from the last steps' track by
+        more than ``_PULLED_TURN``, it replaces the track.
         """
         track = self._tangent_at_vertex(branch)
         far, mid = self._entry_point(branch, radius), self._entry_point(branch, radius / 2)
