@@ -938,7 +938,10 @@ class Graph:
 def graph(tmp_path: Path) -> Iterator[Graph]:
     """The four nodes as processes and the test's driver node; all stopped however the test ends."""
     began = time.monotonic()
-    with harness.pipeline(tmp_path / "logs", DOMAIN_ID) as pipeline:
+    # The bursts must reach the node: segmentation_node keeps only the newest image per camera
+    # by default (queue_depth 1); the sensor-data depth of 5 queues a whole burst.
+    queues = {"segmentation_node": ["-p", "queue_depth:=5"]}
+    with harness.pipeline(tmp_path / "logs", DOMAIN_ID, ros_args=queues) as pipeline:
         driver = harness.Driver(DOMAIN_ID)
         try:
             expected = harness.graph_inputs()
