@@ -36,7 +36,7 @@ import numpy as np
 
 from grasp_executor.backends.base import AbortedError, Backend, BackendError, NotReadyError
 from grasp_executor.geometry import Pose
-from grasp_executor.handeye import HandEye
+from grasp_executor.handeye import FrameMismatchError, HandEye
 from grasp_executor.keypoints import KeypointConfig, KeypointRecord, evenly_spaced_points, plan_keypoints
 from grasp_executor.planning import Dwell, GraspConfig, Jaw, Move, Plan, plan_grasp
 from grasp_executor.safety import GuardedBackend, RefusedError, SafetyGate
@@ -48,7 +48,15 @@ DONE = "done"
 
 
 class InvalidInputError(ValueError):
-    """A grasp pose or path cannot be used (NaN, wrong frame, too short); the text says why."""
+    """A grasp pose or path cannot be used (NaN, wrong frame, too short); the text says why.
+
+    ``reason`` names the problem in one word ("not_finite", "frame", "too_short"): a node
+    throttles its warnings per reason, so a new problem is reported at once.
+    """
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 @dataclass(frozen=True)
@@ -150,11 +158,12 @@ class GraspExecutor:
     def on_grasp_pose(self, pose: Pose, stamp_ns: int) -> Plan:
         """Plan the grasp of a camera-frame grasp pose stamped ``stamp_ns``; InvalidInputError if unusable."""
         if not pose.is_finite():
-            raise InvalidInputError("grasp pose contains NaN or inf")
+            raise InvalidInputError("grasp pose contains NaN or inf", "not_finite")
         try:
             base = self.hand_eye.transform_pose(pose)
-        except ValueError as exc:
-            raise InvalidInputError(str(exc)) from None
+        except ValueError as exc:  # a wrong frame, or a quaternion with no rotation
+            reason = "frame" if isinstance(exc, FrameMismatchError) else "rotation"
+            raise InvalidInputError(str(exc), reason) from None
         plan = plan_grasp(base, self.grasp_config, self._robot.has_jaw)
         with self._lock:
             self._grasp = _Input(stamp_ns, plan=plan)
@@ -169,11 +178,11 @@ class GraspExecutor:
         try:
             self.hand_eye.check_frame(frame_id, "suture path")
         except ValueError as exc:
-            raise InvalidInputError(str(exc)) from None
+            raise InvalidInputError(str(exc), "frame") from None
         if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2:
-            raise InvalidInputError(f"suture path needs at least 2 points, got {len(points)}")
+            raise InvalidInputError(f"suture path needs at least 2 points, got {len(points)}", "too_short")
         if not np.isfinite(points).all():
-            raise InvalidInputError("suture path contains NaN or inf")
+            raise InvalidInputError("suture path contains NaN or inf", "not_finite")
         with self._lock:
             self._path = _Input(stamp_ns, points_camera=points.copy())
 

@@ -50,7 +50,7 @@ from grasp_executor.planning import GraspConfig
 from grasp_executor.safety import SafetyGate, SafetyLimits
 from suture_common import topics
 from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
-from suture_common.ros import RELIABLE_QOS, to_rclpy
+from suture_common.ros import RELIABLE_QOS, ThrottledWarnings, to_rclpy
 from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
 
 NODE_NAME = "grasp_executor"
@@ -100,6 +100,9 @@ DEFAULTS: dict[str, Any] = {
 
 _RUNTIME_PARAMETERS = ("armed",)
 
+WARNING_PERIOD_S = 5.0
+"""Seconds between two warnings about the same problem on the same topic."""
+
 
 class ConfigError(ValueError):
     """A parameter value is unusable; the node does not start."""
@@ -116,6 +119,9 @@ class ExecutorNode(Node):
         self._state_pub = self.create_publisher(String, STATE, RELIABLE_QOS)
         self._target_pub = self.create_publisher(PoseStamped, TARGET_POSE, RELIABLE_QOS)
         self._keypoint_log = str(self._value("keypoints.log_file"))
+        self._warnings = ThrottledWarnings(self.get_logger(), WARNING_PERIOD_S)
+        self.dropped: dict[str, int] = self._warnings.counts
+        """Inputs dropped, by "topic reason"."""
         try:
             self.core = self._build_core()
         except ValueError as exc:
@@ -265,13 +271,19 @@ class ExecutorNode(Node):
             pose = Pose(position, quaternion, msg.header.frame_id)
             self.core.on_grasp_pose(pose, ns_from_stamp(msg.header.stamp))
         except ValueError as exc:
-            self.get_logger().warning(f"dropped {GRASP_POSE}: {exc}", throttle_duration_sec=5.0)
+            self._drop(GRASP_POSE, exc)
 
     def _on_path(self, msg: Path) -> None:
         try:
             self.core.on_path(path_to_array(msg), msg.header.frame_id, ns_from_stamp(msg.header.stamp))
         except ValueError as exc:
-            self.get_logger().warning(f"dropped {PATH}: {exc}", throttle_duration_sec=5.0)
+            self._drop(PATH, exc)
+
+    def _drop(self, topic: str, exc: ValueError) -> None:
+        """One warning per topic and problem every WARNING_PERIOD_S (InvalidInputError.reason, or
+        the conversion error's type)."""
+        reason = getattr(exc, "reason", type(exc).__name__)
+        self._warnings.warn(f"{topic} {reason}", f"dropped {topic}: {exc}")
 
     # ------------------------------------------------------------------ services
 

@@ -361,6 +361,13 @@ def test_dry_run_node_survives_bad_input_and_refuses_with_reasons(ros):
     )
     probe.wait_for_state(response.message)
     assert "planned" not in probe.states  # the bad poses were dropped
+    # counted per problem, so a wrong frame is warned about at once after a NaN pose
+    wait_until(lambda: sum(executor.dropped.values()) == 4, what="the four bad inputs to be dropped")
+    assert executor.dropped == {
+        f"{GRASP_POSE} MessageConversionError": 2,  # NaN position, zero quaternion
+        f"{GRASP_POSE} frame": 1,
+        f"{PATH} MessageConversionError": 1,
+    }
 
     assert executor.set_parameters([Parameter("armed", value=True)])[0].successful
     rejected = executor.set_parameters([Parameter("max_step", value=1.0)])[0]
