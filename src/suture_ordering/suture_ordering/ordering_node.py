@@ -10,7 +10,8 @@ header = that mask's header, reliable QoS) for each pair.
 Parameters: every field of :class:`suture_ordering.OrderingParams` under its own name
 (pixel lengths for a 640 px wide image, scaled with the mask width;
 ``reference_width_px`` 0 means "use the pixel values unscaled"; the ε ranges as
-``[low, high]``), plus ``max_pending`` (unmatched masks kept per side, default 10) and
+``[low, high]``), plus ``max_pending`` (unmatched masks kept per side, and pairs held
+for camera_info, default 10) and
 ``hint_max_age`` (s; a tip hint older than this relative to the masks is ignored, 0 =
 any age, default 0). They are read at start-up.
 
@@ -19,15 +20,18 @@ stamp, else the newest hint not newer than them (a hint clicked once serves the 
 after it), else none (the automatic tip). Taking simply the latest hint went wrong whenever
 segmentation lags behind a stream: the hint of a newer frame was applied to older masks.
 
-A malformed input (wrong encoding, size mismatch, missing camera_info, empty mask, tip
-hint outside the image or NaN, a thread without free end...) drops that frame with one
-throttled warning naming the problem; the node keeps serving.
+Mask pairs that arrive before camera_info of both views (a camera driver started after the
+graph, or camera_info lost during discovery) are held, the newest ``max_pending``, and ordered
+when it arrives. A malformed input (wrong encoding, size mismatch, unusable camera_info, empty
+mask, tip hint outside the image or NaN, a thread without free end...) drops that frame with
+one throttled warning naming the problem; the node keeps serving.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import sys
+from collections import deque
 from typing import Any
 
 import numpy as np
@@ -111,6 +115,8 @@ class OrderingNode(Node):
         self.params = params_from_values(values)  # raises ValueError on a bad value
         self.hint_max_age_ns = int(float(values["hint_max_age"]) * 1e9)
         self.pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
+        self._waiting: deque[tuple[int, Image, Image]] = deque(maxlen=int(values["max_pending"]))
+        """Mask pairs that arrived before camera_info of both views."""
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: StereoCamera | None = None
         self._hints: dict[int, PointStamped] = {}  # by stamp (ns), insertion order
@@ -136,6 +142,10 @@ class OrderingNode(Node):
     def _on_camera_info(self, side: str, message: CameraInfo) -> None:
         self._camera_info[side] = message
         self._camera = None  # rebuilt on the next frame
+        if self._waiting and not self._missing_camera_info():
+            waiting, self._waiting = list(self._waiting), deque(maxlen=self._waiting.maxlen)
+            for stamp_ns, left, right in waiting:
+                self._process(stamp_ns, left, right)
 
     def _on_hint(self, message: PointStamped) -> None:
         stamp_ns = stamp_or_drop(message, self._warnings.warn, "tip hint")
@@ -156,16 +166,11 @@ class OrderingNode(Node):
 
     # ------------------------------------------------------------------ one stereo pair
 
+    def _missing_camera_info(self) -> list[str]:
+        return [side for side in ("left", "right") if side not in self._camera_info]
+
     def _stereo_camera(self) -> StereoCamera | None:
         if self._camera is None:
-            missing = [side for side in ("left", "right") if side not in self._camera_info]
-            if missing:
-                self._warnings.warn(
-                    "camera_info",
-                    f"dropped masks: no {' or '.join(missing)} camera_info received yet "
-                    f"({LEFT_CAMERA_INFO}, {RIGHT_CAMERA_INFO})",
-                )
-                return None
             try:
                 self._camera = StereoCamera.from_camera_info(
                     self._camera_info["left"], self._camera_info["right"]
@@ -186,6 +191,16 @@ class OrderingNode(Node):
         return np.array([point.x, point.y], dtype=np.float64)  # NaN is reported by order_stereo
 
     def _process(self, stamp_ns: int, left: Image, right: Image) -> None:
+        missing = self._missing_camera_info()
+        if missing:  # a camera driver may start after us: hold the newest pairs until it speaks
+            self._waiting.append((stamp_ns, left, right))
+            self._warnings.warn(
+                "camera_info",
+                f"holding masks: no {' or '.join(missing)} camera_info received yet "
+                f"({LEFT_CAMERA_INFO}, {RIGHT_CAMERA_INFO}); the newest {self._waiting.maxlen} pairs "
+                "are ordered when it arrives",
+            )
+            return
         camera = self._stereo_camera()
         if camera is None:
             return

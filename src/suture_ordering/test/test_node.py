@@ -127,6 +127,34 @@ def test_node_publishes_both_sequences_with_the_pair_stamp(ros):
         assert distance.max() < 2.0 and index[-1] > 0.95 * len(truth)
 
 
+def test_masks_before_camera_info_are_held_and_ordered_when_it_arrives(ros):
+    executor, node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    left, right, truth = _scene()
+    _wait_for_subscribers(executor, publishers)
+    for _ in range(20):  # masks and hint only: no camera driver yet
+        message = to_rclpy(point_message(np.zeros(3), STAMP, topics.LEFT_FRAME))
+        message.point.x, message.point.y = float(truth[0][0] + 1.0), float(truth[0][1] + 1.0)
+        publishers[topics.TIP_HINT].publish(message)
+        spin_until(executor, lambda: False, 0.05)
+        for topic, mask, frame in (
+            (topics.LEFT_MASK, left, topics.LEFT_FRAME),
+            (topics.RIGHT_MASK, right, topics.RIGHT_FRAME),
+        ):
+            publishers[topic].publish(to_rclpy(image_message(mask, "mono8", STAMP, frame)))
+        if spin_until(executor, lambda: node.dropped.get("camera_info", 0) > 0, 0.5):
+            break
+    assert node.dropped.get("camera_info", 0) > 0 and not any(received.values())
+    for _ in range(20):  # the camera driver starts: the held pair comes out with its own stamp
+        for side, topic in (("left", topics.LEFT_CAMERA_INFO), ("right", topics.RIGHT_CAMERA_INFO)):
+            frame = topics.LEFT_FRAME if side == "left" else topics.RIGHT_FRAME
+            publishers[topic].publish(to_rclpy(camera_info_message(camera, side, STAMP + 1, frame)))
+        if spin_until(executor, lambda: all(received.values()), 0.5):
+            break
+    stamps = {m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in received[topics.LEFT_SEQUENCE]}
+    assert stamps == {STAMP}
+
+
 def test_node_drops_bad_input_and_keeps_serving(ros, caplog):
     executor, node, publishers, received = ros
     camera = StereoCamera.default(W, H)
