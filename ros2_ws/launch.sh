@@ -142,6 +142,13 @@ start reconstruction_node suture_reconstruction reconstruction_node
 start executor_node grasp_executor executor_node
 
 player_pid=""
+if [ -n "$bag" ] && [ -n "$record" ]; then  # the recorder must hear the first outputs too
+  for _ in $(seq 100); do
+    grep -q "recording " "$log_dir/recorder.log" 2>/dev/null && break
+    alive "${pids[0]}" || break
+    sleep 0.2
+  done
+fi
 if [ -n "$bag" ]; then
   player_args=(-p "bag:=$bag" -p "wait_for_output:=$graph_paced")
   [ -z "$rate" ] || player_args+=(-p "rate:=$rate")

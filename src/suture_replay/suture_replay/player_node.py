@@ -24,11 +24,13 @@ Parameters (read at start-up; numbers accept ints or doubles):
 - ``loops`` (int, default 1): replay the bag this many times; loop k shifts header stamps
   and the schedule by k * (bag span + median frame period).
 - ``start_timeout`` (double s, default 15.0): before the first frame, wait until every
-  image topic has a subscriber, every subscriber the graph knows of on the replayed topics
+  replayed topic has a subscriber, every subscriber the graph knows of on the replayed topics
   is matched, and ``output_topic`` has a publisher, at most this long, then
   start anyway with a warning naming what is missing; the first frame follows
-  :data:`SETTLE_S` later (a best-effort sample sent at discovery can be lost); the
-  first frame's camera_info goes out at once as well, as from a running camera driver.
+  :data:`SETTLE_S` later (a best-effort sample sent at discovery can be lost); during that
+  settle the first frame's camera_info and tip hint go out every :data:`PRIME_PERIOD_S`, as
+  from a running camera driver, so a subscriber whose side of the match completes late
+  still has them for the first frame.
 - ``linger`` (double s, default 1.0): after the last frame, keep receiving outputs this
   long (with ``wait_for_output``: until the last frame's output or ``wait_timeout``).
 - ``report`` (string, default ""): JSON report file to write (see
@@ -53,7 +55,6 @@ from typing import Any
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import CameraInfo
 
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class
 from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
@@ -76,6 +77,8 @@ DEFAULT_OUTPUT_TYPE = "geometry_msgs/msg/PoseStamped"
 START_POLL_S = 0.05
 SETTLE_S = 1.0
 """Seconds between finding every endpoint and the first frame (see the "settling" phase)."""
+PRIME_PERIOD_S = 0.2
+"""While settling, the first frame's camera_info and tip hint are sent this often."""
 
 PUBLISH_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 """What ``ros2 bag play`` offers by default: reliable, keep last 10, volatile."""
@@ -133,7 +136,6 @@ class PlayerNode(Node):
             topic: self.create_publisher(message_class(msgtype), topic, PUBLISH_QOS)
             for topic, msgtype in loaded.types.items()
         }
-        self._image_topics = [t for t, msgtype in loaded.types.items() if msgtype in IMAGE_TYPES]
         # Deserialised once; a loop only rewrites the header stamps of these objects.
         self._messages = [
             [
@@ -157,6 +159,7 @@ class PlayerNode(Node):
         self._next = 0  # index into self._plan of the next frame to publish
         self._pending: int | None = None  # stamp awaited in wait_for_output mode
         self._phase = "starting"
+        self._settled_at = 0.0
         self._created = time.monotonic()
         self._t0 = 0.0
         self._linger_until = 0.0
@@ -177,10 +180,12 @@ class PlayerNode(Node):
         self._timer.reset()
 
     def _missing_endpoints(self) -> list[str]:
+        # every replayed topic needs a subscriber: with images only, a node that comes up late
+        # (ordering_node under load) missed the first frame's camera_info, tip hint and masks
         missing = [
             f"a subscriber on {topic}"
-            for topic in self._image_topics
-            if self._frame_publishers[topic].get_subscription_count() < 1
+            for topic, publisher in self._frame_publishers.items()
+            if publisher.get_subscription_count() < 1
         ]
         # every subscriber the graph already knows of must be matched too (e.g. camera_info of the
         # ordering and reconstruction nodes), or the first frame's messages can miss it
@@ -207,11 +212,16 @@ class PlayerNode(Node):
                 )
             # Matched is not yet ready: a best-effort sample sent right after discovery can be
             # lost while the subscriber's transport is still being set up, so let it settle, and
-            # send the first frame's camera_info now too, as a camera driver would have been
-            # doing all along: a node that lost it would drop the first frame for want of it.
-            self._prime_camera_info()
+            # meanwhile send the first frame's camera_info and tip hint, repeatedly, as a camera
+            # driver would have been doing all along: a node that lost them would drop the first
+            # frame for want of camera_info, or order it from the wrong end without its hint.
+            self._prime_first_frame()
             self._phase = "settling"
-            self._arm(SETTLE_S)
+            self._settled_at = now + SETTLE_S
+            self._arm(PRIME_PERIOD_S)
+        elif self._phase == "settling" and now < self._settled_at:
+            self._prime_first_frame()
+            self._arm(min(PRIME_PERIOD_S, self._settled_at - now))
         elif self._phase == "settling":
             self._phase = "playing"
             self._t0 = time.monotonic()
@@ -254,13 +264,14 @@ class PlayerNode(Node):
         self._publish(planned)
         self._arm(self.settings.wait_timeout)
 
-    def _prime_camera_info(self) -> None:
+    def _prime_first_frame(self) -> None:
+        """Publish the first frame's messages other than its images (camera_info, tip hint)."""
         first = self._plan[0] if self._plan else None
         if first is None:
             return
         sec, nanosec = divmod(first.stamp_ns, 1_000_000_000)
-        for publisher, message, stamped, _ in self._messages[first.frame_index]:
-            if isinstance(message, CameraInfo):
+        for publisher, message, stamped, is_image in self._messages[first.frame_index]:
+            if not is_image:
                 if stamped:
                     message.header.stamp.sec, message.header.stamp.nanosec = sec, nanosec
                 publisher.publish(message)
