@@ -142,10 +142,8 @@ class OrderingNode(Node):
     def _on_camera_info(self, side: str, message: CameraInfo) -> None:
         self._camera_info[side] = message
         self._camera = None  # rebuilt on the next frame
-        if self._waiting and not self._missing_camera_info():
-            waiting, self._waiting = list(self._waiting), deque(maxlen=self._waiting.maxlen)
-            for stamp_ns, left, right in waiting:
-                self._process(stamp_ns, left, right)
+        while self._waiting and not self._missing_camera_info():
+            self._process(*self._waiting.popleft())
 
     def _on_hint(self, message: PointStamped) -> None:
         stamp_ns = stamp_or_drop(message, self._warnings.warn, "tip hint")
