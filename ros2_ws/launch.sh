@@ -135,21 +135,20 @@ trap 'stop_all; exit 130' INT
 trap 'stop_all; exit 143' TERM
 trap 'stop_all' EXIT
 
-recorder_pid=""
-if [ -n "$record" ]; then
-  start recorder suture_replay recorder_node -p "output:=$record"
-  recorder_pid=${pids[-1]}
-fi
+[ -z "$record" ] || start recorder suture_replay recorder_node -p "output:=$record"
 start segmentation_node suture_segmentation segmentation_node
 start ordering_node suture_ordering ordering_node
 start reconstruction_node suture_reconstruction reconstruction_node
 start executor_node grasp_executor executor_node
 
 player_pid=""
-if [ -n "$bag" ] && [ -n "$recorder_pid" ]; then  # the recorder must hear the first outputs too
-  for _ in $(seq 100); do
-    grep -q "recording " "$log_dir/recorder.log" 2>/dev/null && break
-    alive "$recorder_pid" || break
+if [ -n "$bag" ]; then  # every node constructed (its first log line) before the first frame:
+  for _ in $(seq 150); do  # the recorder and the executor's target pose must hear frame 0 too
+    ready=1
+    for i in "${!pids[@]}"; do
+      alive "${pids[$i]}" && [ ! -s "$log_dir/${names[$i]}.log" ] && ready=0
+    done
+    [ "$ready" = 1 ] && break
     sleep 0.2
   done
 fi
