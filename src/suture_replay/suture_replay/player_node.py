@@ -20,7 +20,11 @@ Parameters (read at start-up; numbers accept ints or doubles):
   frames by header stamp. Its type is geometry_msgs/PoseStamped, or the DESIGN.md type
   when the topic is one of suture_common.topics.TOPIC_TYPES (e.g. ``/suture/left/mask``
   to time the segmentation alone; image topics are then subscribed best effort).
-- ``wait_timeout`` (double s, default 2.0): longest wait for one frame's output.
+- ``wait_timeout`` (double s, default 2.0): longest wait for one frame's output. The first
+  frame doubles as a probe of the whole graph: without its output it is sent again, at most
+  :data:`FIRST_FRAME_RESENDS` times, because matched player topics do not mean that the nodes
+  have discovered each other (on a loaded machine a node's reliable output written before its
+  subscriber matched is lost to it, and the discovery retry comes seconds later).
 - ``loops`` (int, default 1): replay the bag this many times; loop k shifts header stamps
   and the schedule by k * (bag span + median frame period).
 - ``start_timeout`` (double s, default 15.0): before the first frame, wait until every
@@ -79,6 +83,8 @@ SETTLE_S = 1.0
 """Seconds between finding every endpoint and the first frame (see the "settling" phase)."""
 PRIME_PERIOD_S = 0.2
 """While settling, the first frame's camera_info and tip hint are sent this often."""
+FIRST_FRAME_RESENDS = 2
+"""Graph mode: times the first frame is sent again when its output does not come (see wait_timeout)."""
 
 PUBLISH_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 """What ``ros2 bag play`` offers by default: reliable, keep last 10, volatile."""
@@ -158,6 +164,7 @@ class PlayerNode(Node):
         self._by_stamp: dict[int, FrameRecord] = {}
         self._next = 0  # index into self._plan of the next frame to publish
         self._pending: int | None = None  # stamp awaited in wait_for_output mode
+        self._resends = 0  # of the first frame, in wait_for_output mode
         self._phase = "starting"
         self._settled_at = 0.0
         self._created = time.monotonic()
@@ -230,7 +237,9 @@ class PlayerNode(Node):
             else:
                 self._publish_due()
         elif self._phase == "playing":
-            if self.settings.wait_for_output:  # wait_timeout passed without the output
+            if self.settings.wait_for_output and self._next == 1 and self._resends < FIRST_FRAME_RESENDS:
+                self._resend_first_frame()
+            elif self.settings.wait_for_output:  # wait_timeout passed without the output
                 self.get_logger().debug(f"no output for stamp {self._pending} within wait_timeout")
                 self._publish_next_and_wait()
             else:
@@ -263,6 +272,18 @@ class PlayerNode(Node):
         self._pending = planned.stamp_ns
         self._publish(planned)
         self._arm(self.settings.wait_timeout)
+
+    def _resend_first_frame(self) -> None:
+        """Graph mode: the first frame's output did not come; publish that frame again."""
+        self._resends += 1
+        self.get_logger().info(
+            f"no output for the first frame within {self.settings.wait_timeout:g} s; sending it again "
+            f"({self._resends}/{FIRST_FRAME_RESENDS}: the nodes may still be discovering each other)"
+        )
+        record = self.records.pop()  # timed from the last send
+        del self._by_stamp[record.stamp_ns]
+        self._next = 0
+        self._publish_next_and_wait()
 
     def _prime_first_frame(self) -> None:
         """Publish the first frame's messages other than its images (camera_info, tip hint)."""

@@ -18,6 +18,10 @@ timestamp. On SIGINT, SIGTERM or node destruction the bag is finalised (MCAP sum
 and ``metadata.yaml``) and ``recorded N messages on K topics to PATH`` is logged; a
 recording without messages is still a valid, empty bag. A bad parameter or an
 uncreatable bag: one line ``recorder_node: ...`` on standard error, exit 1.
+
+Once every recorded topic has a matched publisher the node logs ``every recorded topic
+has a publisher`` (once): messages published before their publisher matched the recorder
+are not recorded, so ``ros2_ws/launch.sh`` waits for that line before it starts a replay.
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 NODE_NAME = "recorder"
 EXECUTABLE = "recorder_node"
 WARN_PERIOD_S = 5.0
+MATCH_POLL_S = 0.1
 
 IMAGE_QOS = QoSProfile(
     depth=50,
@@ -85,16 +90,30 @@ class RecorderNode(Node):
             self._bag = BagWriter(path).open()
         except OSError as exc:  # BagError names the path
             raise ValueError(f"cannot create bag {path}: {exc}") from exc
+        self.matched = False
+        """Whether every topic has had a matched publisher (then the node logged so, once)."""
+        self._subscriptions_unmatched = []
         for topic, msgtype in settings.types.items():
             qos = IMAGE_QOS if msgtype in IMAGE_TYPES else RECORD_QOS
-            self.create_subscription(
+            subscription = self.create_subscription(
                 classes[topic],
                 topic,
                 lambda data, topic=topic, msgtype=msgtype: self._on_message(topic, msgtype, data),
                 qos,
                 raw=True,
             )
+            self._subscriptions_unmatched.append(subscription)
         self.get_logger().info(f"recording {len(settings.topics)} topics to {path}")
+        self._match_timer = self.create_timer(MATCH_POLL_S, self._check_matched)
+
+    def _check_matched(self) -> None:
+        unmatched = [s for s in self._subscriptions_unmatched if s.get_publisher_count() < 1]
+        self._subscriptions_unmatched = unmatched
+        if not unmatched:
+            self.matched = True
+            self._match_timer.cancel()
+            count = len(self.settings.topics)
+            self.get_logger().info(f"every recorded topic has a publisher ({count} topics)")
 
     def _on_message(self, topic: str, msgtype: str, data: bytes) -> None:
         if self._bag is None:

@@ -36,7 +36,7 @@ from suture_common.messages import (
     pose_to_arrays,
 )
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, spin_until, to_rclpy
-from suture_replay.player_node import PlayerNode
+from suture_replay.player_node import FIRST_FRAME_RESENDS, PlayerNode
 from suture_replay.recorder_node import RecorderNode
 
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
@@ -78,14 +78,19 @@ def start_player(context, executor, **parameters) -> PlayerNode:
     return player
 
 
-def echo_graph(helper) -> dict[str, list]:
-    """Subscribe both images (reliable); answer each left image with a PoseStamped of its stamp."""
+def echo_graph(helper, unanswered: int = 0) -> dict[str, list]:
+    """Subscribe both images (reliable); answer each left image with a PoseStamped of its stamp.
+
+    The first ``unanswered`` left images get no answer (a graph whose nodes are still connecting).
+    """
     received: dict[str, list] = {topics.LEFT_IMAGE: [], topics.RIGHT_IMAGE: [], "arrival_s": []}
     pose_pub = helper.create_publisher(PoseStamped, topics.GRASP_POSE, RELIABLE_QOS)
 
     def on_left(message: Image) -> None:
         received[topics.LEFT_IMAGE].append(stamp_ns(message))
         received["arrival_s"].append(time.monotonic())
+        if len(received[topics.LEFT_IMAGE]) <= unanswered:
+            return
         pose = PoseStamped()
         pose.header = message.header
         pose_pub.publish(pose)
@@ -121,6 +126,25 @@ def test_player_waits_for_each_output(ros, tmp_path):
     published = [f["published_s"] for f in report["per_frame"]]
     outputs = [f["output_s"] for f in report["per_frame"]]
     assert all(outputs[k] <= published[k + 1] for k in range(9))
+
+
+@pytest.mark.parametrize(
+    ("unanswered", "first_frame_sends", "outputs"),
+    [(1, 2, 10), (FIRST_FRAME_RESENDS + 1, FIRST_FRAME_RESENDS + 1, 9)],
+)
+def test_player_sends_the_first_frame_again_until_the_graph_answers(
+    ros, unanswered, first_frame_sends, outputs
+):
+    context, executor, helper = ros
+    received = echo_graph(helper, unanswered=unanswered)
+    player = start_player(context, executor, wait_for_output=True, start_timeout=5.0, wait_timeout=0.5)
+    assert spin_until(executor, lambda: player.finished, 20.0)
+    assert received[topics.LEFT_IMAGE] == [T0] * first_frame_sends + SAMPLE_STAMPS[1:]
+    # one record per frame, the first one timed from its last send
+    report = player.report
+    assert (report["frames"], report["outputs"]) == (10, outputs)
+    assert [f["stamp_ns"] for f in report["per_frame"]] == SAMPLE_STAMPS
+    assert (report["per_frame"][0]["latency_ms"] is not None) == (outputs == 10)
 
 
 def test_player_follows_recorded_timing(ros):
@@ -257,6 +281,24 @@ def test_recorder_writes_what_it_receives(ros, tmp_path):
         np.testing.assert_allclose(quaternion, [0, 0, 0, 1])
     assert [m.data for m in by_topic[topics.EXECUTOR_STATE]] == states
     np.testing.assert_allclose(path_to_array(by_topic[topics.PATH][0]), path_points)
+
+
+def test_recorder_says_when_every_topic_has_a_publisher(ros, tmp_path):
+    context, executor, helper = ros
+    recorded = [topics.GRASP_POSE, topics.EXECUTOR_STATE]
+    recorder = RecorderNode(
+        context=context,
+        parameter_overrides=[
+            Parameter("output", value=str(tmp_path / "bag")),
+            Parameter("topics", value=recorded),
+        ],
+    )
+    executor.add_node(recorder)
+    helper.create_publisher(PoseStamped, topics.GRASP_POSE, RELIABLE_QOS)
+    spin_until(executor, lambda: recorder.matched, 1.0)
+    assert not recorder.matched  # the state topic has no publisher yet
+    helper.create_publisher(String, topics.EXECUTOR_STATE, RELIABLE_QOS)
+    assert spin_until(executor, lambda: recorder.matched, 10.0)
 
 
 def path_type() -> type:
