@@ -147,7 +147,7 @@ def test_domain_parameter_ranges_are_separated() -> None:
     legacy = [sample_look("legacy", np.random.default_rng(s)) for s in range(50)]
     onsite = [sample_look("on-site", np.random.default_rng(s)) for s in range(50)]
     assert all(lk.internal_scale == 1.0 for lk in legacy)
-    assert all(0.5 <= lk.internal_scale <= 0.7 for lk in onsite)
+    assert all(0.8 <= lk.internal_scale <= 0.95 for lk in onsite)
     assert all(lk.jpeg_quality is not None and lk.jpeg_quality <= 85 for lk in onsite)
     assert max(lk.read_noise_sigma for lk in legacy) < min(lk.read_noise_sigma for lk in onsite)
     assert max(lk.shot_noise_gain for lk in legacy) < min(lk.shot_noise_gain for lk in onsite)
@@ -281,7 +281,7 @@ def test_on_site_is_blurrier_than_legacy() -> None:
     legacy = np.mean([_edge_sharpness(f) for f in _frames("legacy", _edge())])
     onsite = np.mean([_edge_sharpness(f) for f in _frames("on-site", _edge())])
     assert legacy > 0.5
-    assert legacy > 1.8 * onsite
+    assert legacy > 1.4 * onsite  # softer, not blurred out: measured 0.78 against 0.49
 
 
 def test_colour_casts_differ() -> None:
