@@ -152,10 +152,12 @@ if [ -n "$bag" ]; then  # every node constructed (its first log line) before the
     sleep 0.2
   done
   # and the recorder matched a publisher on every topic (what is written before is not recorded)
-  for _ in $(seq 75); do
-    [ -z "$record" ] || grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" 2>/dev/null || { sleep 0.2; continue; }
-    break
-  done
+  if [ -n "$record" ]; then
+    for _ in $(seq 75); do
+      grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" 2>/dev/null && break
+      sleep 0.2
+    done
+  fi
 fi
 if [ -n "$bag" ]; then
   player_args=(-p "bag:=$bag" -p "wait_for_output:=$graph_paced")
