@@ -91,6 +91,17 @@ start() {  # NAME PKG EXE [extra ros args...]
 }
 
 alive() { kill -0 "$1" 2>/dev/null; }
+poll() {  # TRIES CMD...: run CMD every 0.2 s until it succeeds (status 0) or TRIES runs failed
+  local tries=$1; shift
+  for _ in $(seq "$tries"); do "$@" 2>/dev/null && return 0; sleep 0.2; done
+  return 1
+}
+every_node_logged() {  # every running node has written its first log line
+  local i
+  for i in "${!pids[@]}"; do
+    if alive "${pids[$i]}" && [ ! -s "$log_dir/${names[$i]}.log" ]; then return 1; fi
+  done
+}
 
 peak_memory() {  # write and print each node's VmHWM (peak resident set), MiB
   local i kib json="{" sep=""
@@ -142,24 +153,12 @@ start reconstruction_node suture_reconstruction reconstruction_node
 start executor_node grasp_executor executor_node
 
 player_pid=""
-if [ -n "$bag" ]; then  # every node constructed (its first log line) before the first frame:
-  for _ in $(seq 150); do  # the recorder and the executor's target pose must hear frame 0 too
-    ready=1
-    for i in "${!pids[@]}"; do
-      alive "${pids[$i]}" && [ ! -s "$log_dir/${names[$i]}.log" ] && ready=0
-    done
-    [ "$ready" = 1 ] && break
-    sleep 0.2
-  done
-  # and the recorder matched a publisher on every topic (what is written before is not recorded)
-  if [ -n "$record" ]; then
-    for _ in $(seq 75); do
-      grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" 2>/dev/null && break
-      sleep 0.2
-    done
-  fi
-fi
 if [ -n "$bag" ]; then
+  # Before the first frame: every node constructed (its first log line; the recorder and the
+  # executor's target pose must hear frame 0 too) and the recorder matched a publisher on every
+  # topic (what is written before is not recorded); 30 s and 15 s at most.
+  poll 150 every_node_logged || true
+  [ -z "$record" ] || poll 75 grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" || true
   player_args=(-p "bag:=$bag" -p "wait_for_output:=$graph_paced")
   [ -z "$rate" ] || player_args+=(-p "rate:=$rate")
   [ -z "$loops" ] || player_args+=(-p "loops:=$loops")

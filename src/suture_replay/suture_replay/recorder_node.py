@@ -90,9 +90,7 @@ class RecorderNode(Node):
             self._bag = BagWriter(path).open()
         except OSError as exc:  # BagError names the path
             raise ValueError(f"cannot create bag {path}: {exc}") from exc
-        self.matched = False
-        """Whether every topic has had a matched publisher (then the node logged so, once)."""
-        self._subscriptions_unmatched = []
+        self._subscriptions_unmatched = []  # emptied by _check_matched as publishers match
         for topic, msgtype in settings.types.items():
             qos = IMAGE_QOS if msgtype in IMAGE_TYPES else RECORD_QOS
             subscription = self.create_subscription(
@@ -110,7 +108,6 @@ class RecorderNode(Node):
         unmatched = [s for s in self._subscriptions_unmatched if s.get_publisher_count() < 1]
         self._subscriptions_unmatched = unmatched
         if not unmatched:
-            self.matched = True
             self._match_timer.cancel()
             count = len(self.settings.topics)
             self.get_logger().info(f"every recorded topic has a publisher ({count} topics)")
@@ -124,6 +121,11 @@ class RecorderNode(Node):
             self._warnings.warn("write", f"dropped a message on {topic}: {exc}")
             return
         self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    @property
+    def matched(self) -> bool:
+        """Whether every topic has had a matched publisher (the node then logged so, once)."""
+        return not self._subscriptions_unmatched
 
     @property
     def path(self) -> Path:
