@@ -56,7 +56,9 @@ def _build_parser() -> argparse.ArgumentParser:
     train = commands.add_parser("train", help="train every layer from scratch (M-oST, M-TOT)")
     _training_arguments(train, "train")
     train.add_argument("--widths", default="8,16,32,48,64", help="channel widths C1..C5")
-    train.add_argument("--init", help="continue from this checkpoint (every layer trained; --widths ignored)")
+    train.add_argument(
+        "--init", help="continue from this checkpoint or shipped name (every layer trained; --widths ignored)"
+    )
 
     finetune = commands.add_parser("finetune", help="transfer: freeze the 13-layer extractor, train the rest")
     finetune.add_argument(
@@ -114,7 +116,7 @@ def _datasets(args: argparse.Namespace):  # -> tuple[LabelledImages, LabelledIma
 
 
 def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
-    from suture_segmentation.checkpoint import load_checkpoint
+    from suture_segmentation.checkpoint import load_checkpoint, resolve_weights
     from suture_segmentation.model import SutureUNet
     from suture_segmentation.train import finetune, train
 
@@ -123,7 +125,7 @@ def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
     meta = {"command": "suture-seg " + shlex.join(argv)}
     progress = not args.quiet
     if args.command == "train" and args.init:
-        model, source = load_checkpoint(args.init, args.device)
+        model, source = load_checkpoint(resolve_weights(args.init), args.device)
         meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
         best = train(model, training, validation, config, args.out, meta, args.device, progress)
     elif args.command == "train":

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from suture_segmentation.checkpoint import load_checkpoint
+from suture_segmentation.checkpoint import SHIPPED, load_checkpoint
 from suture_segmentation.cli import main
 from suture_segmentation.data import load_folder
 from suture_segmentation.model import SutureUNet
@@ -133,3 +133,15 @@ def test_train_init_continues_every_layer_of_a_checkpoint(tmp_path: Path, make_f
         if a.dtype.is_floating_point and not torch.equal(a, b)
     ]
     assert any(name.startswith("feature_extractor") for name in changed)  # not frozen, unlike finetune
+
+
+def test_finetune_starts_from_the_shipped_m_ost_by_default(tmp_path: Path, make_folder) -> None:
+    folder = make_folder(tmp_path / "data", 2, seed=4)
+    args = ["finetune", "--images", str(folder / "images"), "--masks", str(folder / "masks")]
+    short = ["--epochs", "1", "--steps-per-epoch", "2", "--batch-size", "2", "--crop", "48", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "b"), *short]) == 0
+    shipped, _ = load_checkpoint(SHIPPED["m_ost"])
+    tuned, meta = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert meta["finetuned_from"] == "m_ost"
+    for key, value in shipped.feature_extractor.state_dict().items():
+        assert torch.equal(value, tuned.feature_extractor.state_dict()[key]), key
