@@ -43,6 +43,11 @@ def _training_arguments(parser: argparse.ArgumentParser, command: str) -> None:
     )
     parser.add_argument("--lr", type=float, default=defaults.learning_rate, help="initial learning rate")
     parser.add_argument("--loss", choices=LOSSES, default=defaults.loss, help="ce (the paper) or ce_dice")
+    parser.add_argument(
+        "--photometric",
+        action="store_true",
+        help="vary colour, exposure, contrast, tone, focus and noise of the training crops",
+    )
     parser.add_argument("--seed", type=int, default=defaults.seed)
     parser.add_argument("--threads", type=int, help="CPU threads (default: all)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
@@ -100,6 +105,7 @@ def _config(args: argparse.Namespace):  # -> TrainConfig
         crop=args.crop,
         learning_rate=args.lr,
         loss=args.loss,
+        photometric=args.photometric,
         seed=args.seed,
         threads=args.threads,
     )

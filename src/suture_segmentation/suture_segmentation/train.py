@@ -44,6 +44,7 @@ class TrainConfig:
         learning_rate: initial Adam learning rate (cosine decay to 5 % of it).
         loss: "ce" (the paper) or "ce_dice".
         on_thread: fraction of crops centred on the thread.
+        photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
         seed: seeds numpy and torch.
         threads: torch CPU threads (None: the default).
     """
@@ -55,6 +56,7 @@ class TrainConfig:
     learning_rate: float = 3e-3
     loss: str = "ce"
     on_thread: float = 0.7
+    photometric: bool = False
     seed: int = 0
     threads: int | None = None
 
@@ -117,7 +119,9 @@ def train(
     if config.threads:
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
-    sampler = CropSampler(training, config.crop, config.on_thread, np.random.default_rng(config.seed))
+    sampler = CropSampler(
+        training, config.crop, config.on_thread, np.random.default_rng(config.seed), config.photometric
+    )
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     model.to(device).train()

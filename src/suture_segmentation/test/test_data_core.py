@@ -10,7 +10,7 @@ import pytest
 
 from suture_segmentation.checkpoint import WeightsError, export_onnx, load_checkpoint
 from suture_segmentation.core import SegmentationInputError, Segmenter
-from suture_segmentation.data import CropSampler, DatasetError, load_folder
+from suture_segmentation.data import CropSampler, DatasetError, load_folder, photometric_jitter
 
 
 def test_folder_loads_images_with_their_masks(line_folder: Path) -> None:
@@ -47,6 +47,32 @@ def test_crops_keep_image_and_mask_aligned(line_folder: Path) -> None:
     # after flips and turns the label still marks the dark line pixels
     red = images[:, 0]
     assert red[labels == 1].mean() < 0.3 < red[labels == 0].mean()
+
+
+def test_photometric_crops_change_the_look_and_keep_the_labels(line_folder: Path) -> None:
+    data = load_folder(line_folder / "images", line_folder / "masks")
+    changed = []
+    for seed in range(30):  # the first crop of a seed: same position, turn and flip either way
+        plain = CropSampler(data, crop=32, on_thread=1.0, rng=np.random.default_rng(seed)).batch(1)
+        varied = CropSampler(
+            data, crop=32, on_thread=1.0, rng=np.random.default_rng(seed), photometric=True
+        ).batch(1)
+        assert np.array_equal(varied[1], plain[1])
+        image, label = varied[0][0], varied[1][0]
+        assert image.dtype == np.float32 and image.min() >= 0.0 and image.max() <= 1.0
+        assert image[0][label == 1].mean() < image[0][label == 0].mean()  # the thread stays dark
+        changed.append(np.abs(image - plain[0][0]).mean() > 0.01)
+    assert 0.6 <= np.mean(changed) < 1.0  # about 80 % of the crops get another look
+
+
+def test_photometric_jitter_spans_colour_tone_and_noise() -> None:
+    grey = np.full((24, 24, 3), 128.0, np.float32)
+    looks = [photometric_jitter(grey, np.random.default_rng(seed)) for seed in range(30)]
+    means = np.array([look.mean(axis=(0, 1)) for look in looks])
+    assert np.ptp(means, axis=0).min() > 40  # exposure and white balance vary
+    assert np.ptp(means[:, 0] - means[:, 2]) > 10  # so does the colour
+    assert max(float(look.std()) for look in looks) > 3  # and the noise
+    assert all(look.dtype == np.float32 and look.min() >= 0 and look.max() <= 255 for look in looks)
 
 
 def test_crops_larger_than_the_image_are_padded(line_folder: Path) -> None:
