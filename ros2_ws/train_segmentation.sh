@@ -10,14 +10,15 @@
 #    on the 2000 more (IoU on fresh legacy frames 0.815 -> 0.854; the first stage alone is the
 #    M-oST of the first Table I reproduction), then once more with --photometric (random white
 #    balance, exposure, contrast, tone, focus and noise), so that the extractor M-ToSOT freezes
-#    does not key on the legacy colours (M-ToSOT after 10 epochs: IoU 68.4 / 63.7 -> 74.2 / 66.3);
+#    does not key on the legacy colours (M-ToSOT IoU 69.7 / 64.3 without that stage, 75.0 / 66.9
+#    with it);
 #    M-TOT: every layer trained on the 40 on-site images only (30 epochs: after 10 it still
 #    predicted no thread at all, IoU 0);
 #    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen,
-#    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 68.4 / 63.7);
+#    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 74.2 / 66.0);
 # 3. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
 #
-# On 2 CPU cores this takes about 110 minutes; with DEVICE=cuda a few minutes.
+# On 2 CPU cores this takes about 120 minutes; with DEVICE=cuda a few minutes.
 # The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt
 # and OUT/m_tosot/best.pt of this script.
 set -euo pipefail
