@@ -55,10 +55,12 @@ def save_checkpoint(model: SutureUNet, path: str | Path, meta: dict[str, Any] | 
 def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[SutureUNet, dict[str, Any]]:
     """The model (in eval mode, on ``device``) and its metadata from a checkpoint file.
 
+    ``path``: a .pt file, or a shipped model's name (``"m_ost"``, ``"m_tosot"``; :func:`resolve_weights`).
+
     Raises:
         WeightsError: missing file, not a torch file, wrong format or mismatching tensors.
     """
-    path = Path(path)
+    path = resolve_weights(path)
     if not path.is_file():
         raise WeightsError(f"weights file {path} does not exist")
     try:

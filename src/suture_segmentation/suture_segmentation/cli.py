@@ -122,7 +122,7 @@ def _datasets(args: argparse.Namespace):  # -> tuple[LabelledImages, LabelledIma
 
 
 def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
-    from suture_segmentation.checkpoint import load_checkpoint, resolve_weights
+    from suture_segmentation.checkpoint import load_checkpoint
     from suture_segmentation.model import SutureUNet
     from suture_segmentation.train import finetune, train
 
@@ -131,7 +131,7 @@ def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
     meta = {"command": "suture-seg " + shlex.join(argv)}
     progress = not args.quiet
     if args.command == "train" and args.init:
-        model, source = load_checkpoint(resolve_weights(args.init), args.device)
+        model, source = load_checkpoint(args.init, args.device)
         meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
         best = train(model, training, validation, config, args.out, meta, args.device, progress)
     elif args.command == "train":
@@ -173,9 +173,9 @@ def _run_evaluate(args: argparse.Namespace) -> int:
 
 
 def _run_export(args: argparse.Namespace) -> int:
-    from suture_segmentation.checkpoint import export_onnx, load_checkpoint, resolve_weights
+    from suture_segmentation.checkpoint import export_onnx, load_checkpoint
 
-    model, _ = load_checkpoint(resolve_weights(args.weights))
+    model, _ = load_checkpoint(args.weights)
     path = export_onnx(model, args.out)
     print(f"suture-seg export: wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
     return 0

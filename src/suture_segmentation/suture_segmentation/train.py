@@ -24,7 +24,7 @@ import torch
 from torch.nn import functional
 from tqdm import tqdm
 
-from suture_segmentation.checkpoint import load_checkpoint, resolve_weights, save_checkpoint
+from suture_segmentation.checkpoint import load_checkpoint, save_checkpoint
 from suture_segmentation.data import CropSampler, LabelledImages
 from suture_segmentation.metrics import mean_scores, score_mask
 from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, suture_probability
@@ -192,7 +192,7 @@ def finetune(
 
     ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_tosot"``).
     """
-    model, source_meta = load_checkpoint(resolve_weights(checkpoint), device)
+    model, source_meta = load_checkpoint(checkpoint, device)
     model.freeze_feature_extractor()
     meta = {**(meta or {}), "finetuned_from": str(checkpoint), "source": source_meta.get("command")}
     return train(model, training, validation, config, out_dir, meta, device, progress)
