@@ -175,6 +175,8 @@ def photometric_jitter(image: np.ndarray, rng: np.random.Generator) -> np.ndarra
     0.7-1.4, a Gaussian blur of sigma 0.3-1.0 px on 30 % of the crops, Gaussian noise of sigma
     0-3 % of full scale. Trained on such variations, the feature extractor that transfer
     learning freezes no longer keys on the training domain's colours (README, Table I).
+    Generic on purpose, not the simulator's ``sample_look``: the stages do not depend on the
+    simulator, and drawing its on-site looks would show M-oST the target domain.
     """
     image = image * (rng.uniform(0.8, 1.2, 3) * rng.uniform(0.7, 1.3)).astype(np.float32)
     mean = image.mean()
