@@ -195,12 +195,13 @@ class ReconstructionNode(Node):
     # ------------------------------------------------------------------ output
 
     def _publish(self, stamp_ns: int, result: Reconstruction) -> None:
-        path = to_rclpy(path_message(result.path, stamp_ns, self.frame_id))
+        # The grasp pose first: the executor waits on it, while building the Path message of a
+        # long thread alone takes several milliseconds.
         pose = to_rclpy(pose_message(result.grasp_position, result.grasp_quaternion, stamp_ns, self.frame_id))
-        self._points.publish(point_cloud(result.points, path.header))
-        self._path.publish(path)
         self._pose.publish(pose)
-        self._markers.publish(markers(result.path, result.grasp_position, path.header))
+        self._points.publish(point_cloud(result.points, pose.header))
+        self._path.publish(to_rclpy(path_message(result.path, stamp_ns, self.frame_id)))
+        self._markers.publish(markers(result.path, result.grasp_position, pose.header))
 
     def _drop(self, reason: str, text: str) -> None:
         self._warnings.warn(reason, text)
