@@ -16,11 +16,12 @@
 #    predicted no thread at all, IoU 0);
 #    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen,
 #    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 74.2 / 66.0);
-# 3. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
+# 3. int8 ONNX exports of M-oST and M-ToSOT, calibrated on frames of their training domain;
+# 4. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
 #
 # On 2 CPU cores this takes about 120 minutes; with DEVICE=cuda a few minutes.
-# The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt
-# and OUT/m_tosot/best.pt of this script.
+# The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt,
+# OUT/m_tosot/best.pt, OUT/m_ost_int8.onnx and OUT/m_tosot_int8.onnx of this script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash ros2_ws/setup.sh >/dev/null
@@ -62,6 +63,11 @@ simulate onsite_set2 3301 20 on-site printed
 "$BIN/suture-seg" finetune --weights "$OUT/m_ost/best.pt" \
     --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
     --epochs 30 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tosot"
+
+"$BIN/suture-seg" export --weights "$OUT/m_ost/best.pt" --int8 \
+    --calibration-images "$DATA/legacy_train_big/images" --out "$OUT/m_ost_int8.onnx"
+"$BIN/suture-seg" export --weights "$OUT/m_tosot/best.pt" --int8 \
+    --calibration-images "$DATA/onsite_train/images" --out "$OUT/m_tosot_int8.onnx"
 
 "$BIN/suture-seg" evaluate \
     --weights "M-oST=$OUT/m_ost/best.pt,M-TOT=$OUT/m_tot/best.pt,M-ToSOT=$OUT/m_tosot/best.pt" \

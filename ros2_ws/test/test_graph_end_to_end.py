@@ -79,7 +79,8 @@ def test_the_graph_publishes_the_grasp_poses_that_suture_eval_computes(replay):
         record.message.header.stamp.sec * 10**9 + record.message.header.stamp.nanosec: record.message
         for record in read_messages(replay["out"] / "outputs", [topics.GRASP_POSE])
     }
-    offline = evaluate([SAMPLE], masks="predicted", seg_weights="m_ost")["per_frame"]
+    # the weights of params/pipeline.yaml
+    offline = evaluate([SAMPLE], masks="predicted", seg_weights="m_ost_int8")["per_frame"]
     assert len(recorded) == len(offline) == 10
     for frame in offline:
         position = recorded[frame["stamp_ns"]].pose.position

@@ -9,7 +9,7 @@ setup(
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
     # The shipped M-oST and M-ToSOT checkpoints (README, "Segmentation").
-    package_data={package_name: ["weights/*.pt"]},
+    package_data={package_name: ["weights/*.pt", "weights/*.onnx"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),

@@ -21,9 +21,15 @@ import torch
 from suture_segmentation.model import SutureUNet
 
 FORMAT = "suture-unet/1"
-#: The weights shipped with the package (see the README for the commands that made them).
+#: The weights shipped with the package (see the README for the commands that made them); the
+#: ``_int8`` ones are ONNX models (``suture-seg export --int8``), for the onnx backend only.
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-SHIPPED = {"m_ost": WEIGHTS_DIR / "m_ost.pt", "m_tosot": WEIGHTS_DIR / "m_tosot.pt"}
+SHIPPED = {
+    "m_ost": WEIGHTS_DIR / "m_ost.pt",
+    "m_tosot": WEIGHTS_DIR / "m_tosot.pt",
+    "m_ost_int8": WEIGHTS_DIR / "m_ost_int8.onnx",
+    "m_tosot_int8": WEIGHTS_DIR / "m_tosot_int8.onnx",
+}
 DEFAULT_WEIGHTS = SHIPPED["m_tosot"]
 ONNX_OPSET = 17
 
@@ -33,7 +39,7 @@ class WeightsError(RuntimeError):
 
 
 def resolve_weights(weights: str | Path | None) -> Path:
-    """Path of ``weights``: None is the shipped M-ToSOT, 'm_ost'/'m_tosot' name a shipped model."""
+    """Path of ``weights``: None is the shipped M-ToSOT, a key of :data:`SHIPPED` a shipped model."""
     if weights is None or str(weights) == "":
         return DEFAULT_WEIGHTS
     if str(weights) in SHIPPED:
@@ -63,6 +69,8 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[SutureUNet, 
     path = resolve_weights(path)
     if not path.is_file():
         raise WeightsError(f"weights file {path} does not exist")
+    if path.suffix == ".onnx":
+        raise WeightsError(f"{path} is an ONNX model: run it with the onnx backend, or give a .pt checkpoint")
     try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises several types for corrupt files
@@ -100,6 +108,22 @@ def onnx_bytes(model: SutureUNet) -> bytes:
             dynamo=False,
         )
     return buffer.getvalue()
+
+
+def with_metadata(model: bytes, metadata: dict[str, str]) -> bytes:
+    """The ONNX ``model`` with ``metadata`` added to its metadata_props (e.g. the export command)."""
+    import onnx
+
+    proto = onnx.load_from_string(model)
+    onnx.helper.set_model_props(proto, {**{p.key: p.value for p in proto.metadata_props}, **metadata})
+    return proto.SerializeToString()
+
+
+def onnx_metadata(path: str | Path) -> dict[str, str]:
+    """The metadata_props of an ONNX file (``suture-seg export`` records its command there)."""
+    import onnx
+
+    return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
 
 
 def export_onnx(model: SutureUNet, path: str | Path) -> Path:

@@ -5,7 +5,7 @@ Sub-commands::
     suture-seg train     --images DIR --masks DIR --out DIR [--val-images DIR --val-masks DIR] ...
     suture-seg finetune  --weights PT --images DIR --masks DIR --out DIR ...   (extractor frozen)
     suture-seg evaluate  --weights PT[,PT...] --images DIR --masks DIR [--report DIR] ...
-    suture-seg export    --weights PT --out FILE.onnx
+    suture-seg export    --weights PT --out FILE.onnx [--int8 --calibration-images DIR]
     suture-seg bench     [--weights PT] [--backends onnx,torch] [--device cpu|cuda] ...
 
 Folders are in the format of :mod:`suture_segmentation.data` (``images/`` and ``masks/`` with the
@@ -42,7 +42,12 @@ def _training_arguments(parser: argparse.ArgumentParser, command: str) -> None:
         "--crop", type=int, default=defaults.crop, help="crop side in pixels (multiple of 16)"
     )
     parser.add_argument("--lr", type=float, default=defaults.learning_rate, help="initial learning rate")
-    parser.add_argument("--loss", choices=LOSSES, default=defaults.loss, help="ce (the paper) or ce_dice")
+    parser.add_argument(
+        "--loss",
+        choices=LOSSES,
+        default=defaults.loss,
+        help="ce (the paper), ce_dice, or ce_skeleton (plus skeleton recall)",
+    )
     parser.add_argument(
         "--photometric",
         action="store_true",
@@ -84,6 +89,13 @@ def _build_parser() -> argparse.ArgumentParser:
     export = commands.add_parser("export", help="write an ONNX model")
     export.add_argument("--weights", default="m_tosot", help="checkpoint (default: shipped M-ToSOT)")
     export.add_argument("--out", required=True, help="ONNX file to write")
+    export.add_argument(
+        "--int8",
+        action="store_true",
+        help="quantise to int8 (faster on CPUs with VNNI), calibrated on --calibration-images",
+    )
+    export.add_argument("--calibration-images", help="folder of frames from the target camera (with --int8)")
+    export.add_argument("--calibration-count", type=int, default=16, help="calibration frames used (spread)")
 
     bench = commands.add_parser("bench", help="milliseconds per stereo pair for each backend")
     bench.add_argument("--weights", default="m_tosot")
@@ -172,11 +184,22 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_export(args: argparse.Namespace) -> int:
-    from suture_segmentation.checkpoint import export_onnx, load_checkpoint
+def _run_export(args: argparse.Namespace, argv: list[str]) -> int:
+    from suture_segmentation.checkpoint import load_checkpoint, onnx_bytes, with_metadata
 
+    if args.int8 != bool(args.calibration_images):
+        raise ValueError("--int8 and --calibration-images DIR (frames of the target camera) go together")
     model, _ = load_checkpoint(args.weights)
-    path = export_onnx(model, args.out)
+    if args.int8:
+        from suture_segmentation.quantize import calibration_images, quantized_onnx_bytes
+
+        frames = calibration_images(args.calibration_images, args.calibration_count)
+        exported = quantized_onnx_bytes(model, frames)
+    else:
+        exported = onnx_bytes(model)
+    path = Path(args.out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(with_metadata(exported, {"command": "suture-seg " + shlex.join(argv)}))
     print(f"suture-seg export: wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
     return 0
 
@@ -203,7 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command in ("train", "finetune"):
             return _run_training(args, argv)
-        return {"evaluate": _run_evaluate, "export": _run_export, "bench": _run_bench}[args.command](args)
+        if args.command == "export":
+            return _run_export(args, argv)
+        return {"evaluate": _run_evaluate, "bench": _run_bench}[args.command](args)
     except (DatasetError, WeightsError, ValueError, OSError) as error:
         print(f"suture-seg {args.command}: error: {error}", file=sys.stderr)
         return 2

@@ -40,8 +40,9 @@ class Segmenter:
 
     Args:
         weights: a ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx``
-            file (``suture-seg export``; ONNX backend only), ``"m_ost"``/``"m_tosot"`` for a
-            shipped model, or None for the shipped M-ToSOT.
+            file (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"``
+            (or their int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``) for a shipped
+            model, or None for the shipped M-ToSOT.
         backend: ``"onnx"`` (ONNX Runtime) or ``"torch"``.
         device: ``"cpu"`` or ``"cuda"`` (``"cuda:1"`` ...); ONNX on CUDA needs onnxruntime-gpu.
         threshold: suture probability above which a pixel is suture, in (0, 1).

@@ -19,6 +19,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from suture_segmentation.checkpoint import resolve_weights
 from suture_segmentation.core import Segmenter
 from suture_segmentation.data import LabelledImages
 from suture_segmentation.metrics import MaskScores, mean_scores, score_mask
@@ -50,13 +51,19 @@ def evaluate_models(
     """Per-image scores of every model (name -> weights) on every set (name -> images)."""
     results: Results = {name: {} for name in sets}
     for model_name, weights in models.items():
-        segmenter = Segmenter(weights, backend="torch", threshold=threshold)
+        segmenter = scoring_segmenter(weights, threshold)
         for set_name, data in sets.items():
             results[set_name][model_name] = [
                 score_mask(segmenter.segment([image])[0], mask)
                 for image, mask in zip(data.images, data.masks, strict=True)
             ]
     return results
+
+
+def scoring_segmenter(weights: str | Path, threshold: float) -> Segmenter:
+    """PyTorch for a checkpoint (the reference), ONNX Runtime for an ``.onnx`` file (e.g. int8)."""
+    backend = "onnx" if resolve_weights(weights).suffix == ".onnx" else "torch"
+    return Segmenter(weights, backend=backend, threshold=threshold)
 
 
 def markdown_table(results: Results) -> str:
@@ -174,7 +181,7 @@ def write_overlays(
     threshold: float = 0.5,
 ) -> Path:
     """A grid (rows: images, columns: input then each model) of :func:`overlay` images."""
-    segmenters = {name: Segmenter(w, backend="torch", threshold=threshold) for name, w in models.items()}
+    segmenters = {name: scoring_segmenter(w, threshold) for name, w in models.items()}
     rows = []
     for i in indices:
         tiles = [data.images[i]]

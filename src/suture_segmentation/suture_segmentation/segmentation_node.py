@@ -10,8 +10,9 @@ the header of the input image of that side, sensor-data QoS). bgr8 images are re
 before they reach the model; mono8 images are segmented as grey.
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped M-ToSOT
-model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot" name a shipped model,
-anything else is a ``.pt`` checkpoint or an ``.onnx`` file.
+model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot" name a shipped model and
+"m_ost_int8"/"m_tosot_int8" its int8 ONNX export (backend onnx); anything else is a ``.pt``
+checkpoint or an ``.onnx`` file.
 
 Weights that cannot be loaded (missing, corrupt, not a suture U-Net) stop the node at
 start-up: ``ros2 run`` prints one line, ``segmentation_node: cannot load weights: ...``, on
@@ -59,7 +60,7 @@ from suture_segmentation.core import SegmentationInputError, Segmenter, StereoSi
 NODE_NAME = "segmentation_node"
 
 PARAMETERS: dict[str, tuple[Any, str]] = {
-    "weights": ("", 'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot", or a .pt/.onnx file'),
+    "weights": ("", 'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot"[_int8], or a .pt/.onnx file'),
     "backend": ("onnx", "inference backend: onnx (ONNX Runtime) or torch"),
     "device": ("cpu", "cpu or cuda[:N]"),
     "threshold": (0.5, "suture probability above which a pixel is suture, in (0, 1)"),

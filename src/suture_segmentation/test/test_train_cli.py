@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import json
+import shlex
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
-from suture_segmentation.checkpoint import SHIPPED, load_checkpoint
+from suture_segmentation.checkpoint import SHIPPED, load_checkpoint, onnx_metadata
 from suture_segmentation.cli import main
+from suture_segmentation.core import Segmenter
 from suture_segmentation.data import load_folder
 from suture_segmentation.model import SutureUNet
-from suture_segmentation.train import TrainConfig, evaluate_model, train
+from suture_segmentation.train import TrainConfig, evaluate_model, segmentation_loss, train, tubed_skeleton
 
 TINY = ["--epochs", "2", "--steps-per-epoch", "15", "--batch-size", "4", "--crop", "48", "--quiet"]
 
@@ -38,6 +41,7 @@ def test_train_finetune_export_evaluate_bench_commands(
 ) -> None:
     folder = make_folder(tmp_path / "data", 4, seed=2)
     images, masks = str(folder / "images"), str(folder / "masks")
+    data = load_folder(images, masks)
     assert (
         main(
             [
@@ -82,6 +86,14 @@ def test_train_finetune_export_evaluate_bench_commands(
 
     assert main(["export", "--weights", str(source), "--out", str(tmp_path / "m.onnx")]) == 0
     assert (tmp_path / "m.onnx").stat().st_size > 1000
+    int8 = ["export", "--weights", str(source), "--out", str(tmp_path / "m8.onnx"), "--int8"]
+    assert main([*int8, "--calibration-images", images, "--calibration-count", "2"]) == 0
+    assert onnx_metadata(tmp_path / "m8.onnx")["command"] == "suture-seg " + shlex.join(
+        [*int8, "--calibration-images", images, "--calibration-count", "2"]
+    )
+    quantized = Segmenter(tmp_path / "m8.onnx").probabilities(data.images[:2])
+    reference = Segmenter(source, backend="torch").probabilities(data.images[:2])
+    assert quantized.shape == reference.shape and np.abs(quantized - reference).mean() < 0.05
 
     report = tmp_path / "report"
     weights = f"A={source},B={tmp_path / 'b' / 'last.pt'}"
@@ -105,6 +117,8 @@ def test_train_finetune_export_evaluate_bench_commands(
     [
         ["train", "--images", "/nonexistent", "--masks", "/nonexistent", "--out", "/tmp/x"],
         ["export", "--weights", "/nonexistent.pt", "--out", "/tmp/x.onnx"],
+        ["export", "--weights", "m_ost", "--out", "/tmp/x.onnx", "--int8"],
+        ["export", "--weights", "m_ost_int8", "--out", "/tmp/x.onnx"],
         ["bench", "--weights", "/nonexistent.pt", "--pairs", "1"],
     ],
 )
@@ -150,3 +164,23 @@ def _assert_same_extractor(source: SutureUNet, tuned: SutureUNet) -> None:
     tuned_state = tuned.feature_extractor.state_dict()
     for key, value in source.feature_extractor.state_dict().items():
         assert torch.equal(value, tuned_state[key]), key
+
+
+def test_skeleton_recall_loss_punishes_a_gap_across_the_thread_more_than_a_frayed_edge() -> None:
+    labels = np.zeros((1, 32, 32), np.int64)
+    labels[0, 10:15, :] = 1  # a 5 px thread along the rows
+    tube = tubed_skeleton(labels)[0]
+    assert tube[11:14, 3:-3].all() and not tube[[10, 14], 3:-3].any()  # centre line, 3 px
+
+    def logits_missing(rows: slice, columns: slice) -> torch.Tensor:
+        suture = np.where(labels[0] == 1, 4.0, -4.0)
+        suture[rows, columns] = -4.0  # ten thread pixels predicted as background
+        return torch.from_numpy(np.stack([-suture, suture])[None]).float()
+
+    gap = logits_missing(slice(10, 15), slice(15, 17))
+    frayed = logits_missing(slice(10, 11), slice(15, 25))
+    truth = torch.from_numpy(labels)
+    ce = [segmentation_loss(x, truth, "ce").item() for x in (gap, frayed)]
+    skeleton = [segmentation_loss(x, truth, "ce_skeleton").item() for x in (gap, frayed)]
+    assert ce[0] == pytest.approx(ce[1])  # cross-entropy cannot tell them apart
+    assert skeleton[0] > skeleton[1] + 0.005
