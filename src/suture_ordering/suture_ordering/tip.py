@@ -43,33 +43,41 @@ def free_ends(mask: np.ndarray) -> np.ndarray:
 def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
     """Move a skeleton end point to the end of the mask along the thread's direction.
 
-    Thinning shortens a thread's end by up to its width (more on 2-px diagonal threads). The
-    thread leaves ``end`` towards the centroid C of the mask pixels between radius/2 and
-    radius from it; the returned end (float64 (u, v)) is the mask pixel within ``radius``
-    that lies farthest out along C -> end and at most 1.5 px from that axis, moved back by
+    Thinning shortens a thread's end by up to its width (more on diagonal threads: 7 px on a
+    3-px thread at 43 degrees). The thread leaves ``end`` along its skeleton: the outward axis
+    points from the mean of the skeleton pixels within ``radius`` (those connected to ``end``)
+    to ``end``. The returned end (float64 (u, v)) is the mask pixel within ``radius``, connected
+    to ``end``, that lies farthest out along that axis and at most 1.5 px from it, moved back by
     half the thread's width (the rounded end of a thread lies that far beyond its centreline's
-    end). The width is the mask area between radius/2 and radius divided by radius/2.
+    end). The width is the mask area between radius/2 and radius from ``end``, on the inner
+    side, divided by radius/2. (The mask pixels alone cannot give the axis: when the skeleton
+    is that short, they lie on both sides of ``end``.)
     """
     r = int(np.ceil(radius))
     u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
     window = mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1]
-    rows, cols = np.nonzero(window)
-    offset = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
-    distance = np.hypot(offset[:, 0], offset[:, 1])
-    ring = (distance >= radius / 2) & (distance <= radius)
-    if not ring.any():
-        return np.asarray(end, dtype=np.float64)
-    axis = -offset[ring].mean(axis=0)
+    skeleton = skeletonize(np.asarray(window, dtype=bool)).astype(np.uint8)
+    _, labels = cv2.connectedComponents(skeleton, connectivity=8)
+    own = labels[int(end[1]) - v0, int(end[0]) - u0]
+    rows, cols = np.nonzero((labels == own) & (skeleton > 0)) if own else ((), ())
+    inward = np.column_stack((np.asarray(cols) + u0 - end[0], np.asarray(rows) + v0 - end[1]))
+    inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
+    axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
     norm = float(np.hypot(*axis))
     if norm < 1e-6:
         return np.asarray(end, dtype=np.float64)
     axis /= norm
+    _, pieces = cv2.connectedComponents(np.asarray(window, dtype=np.uint8), connectivity=8)
+    rows, cols = np.nonzero(pieces == pieces[int(end[1]) - v0, int(end[0]) - u0])  # not another thread
+    offset = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
+    distance = np.hypot(offset[:, 0], offset[:, 1])
     along = offset @ axis
     across = np.abs(offset[:, 0] * axis[1] - offset[:, 1] * axis[0])
     ok = (distance <= radius) & (across <= 1.5)
     if not ok.any() or along[ok].max() <= 0:
         return np.asarray(end, dtype=np.float64)
     best = np.flatnonzero(ok)[np.argmax(np.where(ok, along, -np.inf)[ok])]
+    ring = (distance >= radius / 2) & (distance <= radius) & (along < 0)
     thread_width = int(ring.sum()) / (radius / 2)
     back = min(max(0.0, (thread_width - 1) / 2), float(along[best]) + 0.0)
     return np.asarray(end, dtype=np.float64) + offset[best] - back * axis
