@@ -44,31 +44,33 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     """Move a skeleton end point to the end of the mask along the thread's direction.
 
     Thinning shortens a thread's end by up to its width (more on diagonal threads: 7 px on a
-    3-px thread at 43 degrees). The thread leaves ``end`` along its skeleton: the outward axis
-    points from the mean of the skeleton pixels within ``radius`` (those connected to ``end``)
-    to ``end``. The returned end (float64 (u, v)) is the mask pixel within ``radius``, connected
-    to ``end``, that lies farthest out along that axis and at most 1.5 px from it, moved back by
-    half the thread's width (the rounded end of a thread lies that far beyond its centreline's
-    end). The width is the mask area between radius/2 and radius from ``end``, on the inner
-    side, divided by radius/2. (The mask pixels alone cannot give the axis: when the skeleton
-    is that short, they lie on both sides of ``end``.)
+    3-px thread at 43 degrees). Only the mask pixels connected to ``end`` within ``radius``
+    count (another thread may pass by). The thread leaves ``end`` along its skeleton: the outward
+    axis points from the mean of the skeleton pixels within ``radius`` to ``end``. The returned
+    end (float64 (u, v)) is the mask pixel that lies farthest out along that axis, within
+    ``radius`` and at most 1.5 px from the axis, moved back by half the thread's width (the
+    rounded end of a thread lies that far beyond its centreline's end). The width is the mask
+    area between radius/2 and radius from ``end``, on the inner side, divided by radius/2. (The
+    mask pixels alone cannot give the axis: when the skeleton is that short, they lie on both
+    sides of ``end``.)
     """
     r = int(np.ceil(radius))
     u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
-    window = mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1]
-    skeleton = skeletonize(np.asarray(window, dtype=bool)).astype(np.uint8)
-    _, labels = cv2.connectedComponents(skeleton, connectivity=8)
-    own = labels[int(end[1]) - v0, int(end[0]) - u0]
-    rows, cols = np.nonzero((labels == own) & (skeleton > 0)) if own else ((), ())
-    inward = np.column_stack((np.asarray(cols) + u0 - end[0], np.asarray(rows) + v0 - end[1]))
+    window = np.asarray(mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1], dtype=np.uint8)
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    own = pieces[int(end[1]) - v0, int(end[0]) - u0]
+    if own == 0:  # not on the mask
+        return np.asarray(end, dtype=np.float64)
+    thread = pieces == own  # not another thread passing through the window
+    rows, cols = np.nonzero(skeletonize(thread))
+    inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
     inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
     axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
     norm = float(np.hypot(*axis))
     if norm < 1e-6:
         return np.asarray(end, dtype=np.float64)
     axis /= norm
-    _, pieces = cv2.connectedComponents(np.asarray(window, dtype=np.uint8), connectivity=8)
-    rows, cols = np.nonzero(pieces == pieces[int(end[1]) - v0, int(end[0]) - u0])  # not another thread
+    rows, cols = np.nonzero(thread)
     offset = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
     distance = np.hypot(offset[:, 0], offset[:, 1])
     along = offset @ axis
