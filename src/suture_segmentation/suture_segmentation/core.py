@@ -96,6 +96,9 @@ class Segmenter:
             torch_model, self.meta = load_checkpoint(self.weights)
             model = onnx_bytes(torch_model)
         options = onnxruntime.SessionOptions()
+        # Idle worker threads sleep instead of spinning: on a few cores, spinning ones took CPU
+        # from the other nodes and from the next run itself (README, "Node graph latency").
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         if threads:
             options.intra_op_num_threads = threads
         providers = ["CPUExecutionProvider"]
