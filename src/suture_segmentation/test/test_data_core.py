@@ -107,6 +107,12 @@ def test_onnx_and_torch_backends_give_the_same_masks(random_checkpoint: Path, pa
     assert np.abs(Segmenter(onnx_file).probabilities(list(pair)) - p_onnx).max() < 1e-5
 
 
+def test_onnx_worker_threads_sleep_when_idle(random_checkpoint: Path) -> None:
+    # spinning threads took the CPU of the other nodes on 2 cores (README, "Node graph latency")
+    options = Segmenter(random_checkpoint, backend="onnx")._session.get_session_options()
+    assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+
+
 def test_masks_are_mono8_of_the_input_size(random_checkpoint: Path, pair) -> None:
     left, right = Segmenter(random_checkpoint, backend="torch").segment_pair(*pair)
     for mask in (left, right):
