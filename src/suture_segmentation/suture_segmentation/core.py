@@ -114,7 +114,7 @@ class Segmenter:
 
     def probabilities(self, images: list[np.ndarray]) -> np.ndarray:
         """(B, H, W) float32 suture probability of equally sized images (one batch)."""
-        batch = _as_batch(images)
+        batch = image_batch(images)
         height, width = batch.shape[-2:]
         if self.input_size is not None and (width, height) != self.input_size:
             batch = functional.interpolate(
@@ -151,7 +151,7 @@ class Segmenter:
         return left_mask, right_mask
 
 
-def _as_batch(images: list[np.ndarray]) -> torch.Tensor:
+def image_batch(images: list[np.ndarray]) -> torch.Tensor:
     """(B, 3, H, W) float32 in [0, 1] from uint8 RGB or grey images; raises SegmentationInputError."""
     if not images:
         raise SegmentationInputError("no images to segment")

@@ -59,6 +59,20 @@ def read_rgb(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
+def image_files(folder: str | Path) -> list[Path]:
+    """The image files (:data:`IMAGE_SUFFIXES`) of ``folder``, sorted by name.
+
+    Raises DatasetError if ``folder`` is not a folder or holds no image.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder} is not a folder")
+    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not paths:
+        raise DatasetError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    return paths
+
+
 def load_folder(images_dir: str | Path, masks_dir: str | Path, limit: int | None = None) -> LabelledImages:
     """Read every image of ``images_dir`` with its mask of the same name in ``masks_dir``.
 
@@ -70,12 +84,9 @@ def load_folder(images_dir: str | Path, masks_dir: str | Path, limit: int | None
         DatasetError: a folder is missing or empty, a mask is missing, unreadable or of another size.
     """
     images_dir, masks_dir = Path(images_dir), Path(masks_dir)
-    for folder in (images_dir, masks_dir):
-        if not folder.is_dir():
-            raise DatasetError(f"{folder} is not a folder")
-    paths = sorted(p for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not paths:
-        raise DatasetError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {images_dir}")
+    if not masks_dir.is_dir():
+        raise DatasetError(f"{masks_dir} is not a folder")
+    paths = image_files(images_dir)
     if limit is not None:
         paths = paths[:limit]
     names, images, masks = [], [], []

@@ -19,24 +19,21 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from suture_segmentation.checkpoint import onnx_bytes
-from suture_segmentation.data import IMAGE_SUFFIXES, DatasetError, read_rgb
+from suture_segmentation.core import image_batch
+from suture_segmentation.data import DatasetError, image_files, read_rgb
 from suture_segmentation.model import SutureUNet, pad_to_multiple
 
 
 def calibration_images(folder: str | Path, count: int = 16) -> list[np.ndarray]:
     """``count`` images spread evenly over the sorted image files of ``folder``, (H, W, 3) uint8 RGB.
 
-    Raises DatasetError if ``folder`` has no images or ``count`` is below 1.
+    Raises DatasetError if ``folder`` is not a folder of images or ``count`` is below 1.
     """
-    folder = Path(folder)
     if count < 1:
         raise DatasetError(f"the calibration needs at least one image, got count {count}")
-    paths = sorted(p for p in folder.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not paths:
-        raise DatasetError(f"no calibration images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    paths = image_files(folder)
     picks = np.unique(np.linspace(0, len(paths) - 1, min(count, len(paths))).round().astype(int))
     return [read_rgb(paths[i]) for i in picks]
 
@@ -58,10 +55,7 @@ def quantized_onnx_bytes(model: SutureUNet, images: Sequence[np.ndarray]) -> byt
 
     if not images:
         raise DatasetError("the calibration needs at least one image")
-    batches = []
-    for image in images:
-        batch = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float() / 255.0
-        batches.append({"image": pad_to_multiple(batch)[0].numpy()})
+    batches = [{"image": pad_to_multiple(image_batch([image]))[0].numpy()} for image in images]
 
     class Batches(CalibrationDataReader):
         def __init__(self) -> None:
