@@ -84,8 +84,9 @@ def load_folder(images_dir: str | Path, masks_dir: str | Path, limit: int | None
         DatasetError: a folder is missing or empty, a mask is missing, unreadable or of another size.
     """
     images_dir, masks_dir = Path(images_dir), Path(masks_dir)
-    if not masks_dir.is_dir():
-        raise DatasetError(f"{masks_dir} is not a folder")
+    for folder in (images_dir, masks_dir):
+        if not folder.is_dir():
+            raise DatasetError(f"{folder} is not a folder")
     paths = image_files(images_dir)
     if limit is not None:
         paths = paths[:limit]
