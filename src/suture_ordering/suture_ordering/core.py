@@ -23,6 +23,7 @@ from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
 from suture_ordering.errors import InvalidInputError
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
+from suture_ordering.stereo_fill import continue_from_other_view
 from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
 
 
@@ -71,13 +72,16 @@ class StereoOrdering:
     one longer segment between the last point before and the first point after it, since
     nothing under the occluder can be seen, matched between the views or triangulated.
     ``left_result`` / ``right_result``: the per-view :class:`OrderingResult` (with the gap
-    interpolation in ``points``, status and diagnostics).
+    interpolation in ``points``, status and diagnostics) of each view's own search.
+    ``filled``: points appended to ``left`` and ``right`` by following the other view across a
+    gap in this view's mask (:mod:`suture_ordering.stereo_fill`); 0 where none was needed.
     """
 
     left: np.ndarray
     right: np.ndarray
     left_result: OrderingResult
     right_result: OrderingResult
+    filled: tuple[int, int] = (0, 0)
 
 
 @dataclass(frozen=True)
@@ -149,8 +153,13 @@ def order_sequence(
     InvalidInputError, EmptyMaskError, TipOutsideImageError, TipNotOnThreadError, NoFreeEndError
         All subclasses of :class:`suture_ordering.errors.OrderingError` (a ``ValueError``).
     """
+    return _order_view(mask, tip, OrderingParams() if params is None else params, view)[0]
+
+
+def _order_view(
+    mask: np.ndarray, tip: np.ndarray | None, params: OrderingParams, view: str | None
+) -> tuple[OrderingResult, _Prepared]:
     started = time.perf_counter()
-    params = OrderingParams() if params is None else params
     if tip is not None:  # reject a bad hint before spending time on the mask
         shape = np.shape(mask)
         if len(shape) == 2:
@@ -160,7 +169,7 @@ def order_sequence(
         start, source = automatic_tip(prepared.clean.mask, prepared.scaled.tip_radius, view), "automatic"
     else:
         start, source = tip_from_hint(prepared.clean.mask, tip, prepared.scaled.tip_radius, view), "hint"
-    return _search(prepared, start, source, started)
+    return _search(prepared, start, source, started), prepared
 
 
 def order_stereo(
@@ -203,12 +212,36 @@ def order_stereo(
                 f"({camera.height}, {camera.width}) from camera_info",
                 view,
             )
-    left = order_sequence(left_mask, tip_hint, params, view="left")
+    left, left_prepared = _order_view(left_mask, tip_hint, params, "left")
     started = time.perf_counter()
-    prepared = _prepare(right_mask, params, "right")
+    right_prepared = _prepare(right_mask, params, "right")
     d_min = float(camera.disparity(params.max_depth_m))
     d_max = float(camera.disparity(params.min_depth_m))
-    scaled = prepared.scaled
-    start = right_tip(prepared.clean.mask, left.tip, (d_min, d_max), scaled.row_tolerance, scaled.tip_radius)
-    right = _search(prepared, start, "epipolar", started)
-    return StereoOrdering(left=left.visible, right=right.visible, left_result=left, right_result=right)
+    scaled = right_prepared.scaled
+    start = right_tip(
+        right_prepared.clean.mask, left.tip, (d_min, d_max), scaled.row_tolerance, scaled.tip_radius
+    )
+    right = _search(right_prepared, start, "epipolar", started)
+    # A gap in one view's mask that the other view does not have: follow the other view across it.
+    views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
+    sequences, filled = [], []
+    for own, prepared, guide, sign in views:
+        extra = np.empty((0, 2))
+        if params.stereo_fill_max_gap_px > 0 and own.status == "free_end":
+            extra = continue_from_other_view(
+                own.visible,
+                prepared.clean.mask,
+                guide.points,
+                sign,
+                (d_min, d_max),
+                max_gap=params.stereo_fill_max_gap_px * prepared.scaled.scale,
+            )
+        sequences.append(np.vstack([own.visible, extra]))
+        filled.append(len(extra))
+    return StereoOrdering(
+        left=sequences[0],
+        right=sequences[1],
+        left_result=left,
+        right_result=right,
+        filled=(filled[0], filled[1]),
+    )

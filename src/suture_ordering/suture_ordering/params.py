@@ -95,6 +95,10 @@ class OrderingParams:
     #: Right-view tip: depth range that bounds the disparity search (m).
     min_depth_m: float = 0.05
     max_depth_m: float = 0.15
+    #: A view whose search stops at a gap the other view does not have is continued along the
+    #: other view (shifted by the disparity, kept where this view's mask confirms it) across
+    #: gaps of up to this many px; 0 turns it off (:mod:`suture_ordering.stereo_fill`).
+    stereo_fill_max_gap_px: float = 60.0
     #: Upper bound on search steps (a safeguard; a 640 px image needs < 200).
     max_steps: int = 2000
     #: Width the pixel values above refer to; None: use them unscaled.

@@ -273,6 +273,54 @@ def test_order_stereo_rejects_masks_of_the_wrong_size():
         order_stereo(left, left[:, :600], np.array([300.0, 100.0]), camera)
 
 
+def _gap_in_right_view(gap_rows: tuple[int, int], disparity_after: float = 30.0):
+    """A steep thread seen by both views, the right mask missing rows ``gap_rows`` of it; the
+    disparity is 30 px before the gap and ``disparity_after`` beyond it (the thread rises)."""
+    truth_left = line((250, 60), (330, 430))
+    disparity = np.where(truth_left[:, 1] < gap_rows[0], 30.0, disparity_after)
+    truth_right = truth_left - np.column_stack([disparity, np.zeros(len(disparity))])
+    right_visible = (truth_right[:, 1] < gap_rows[0]) | (truth_right[:, 1] > gap_rows[1])
+    before, after = truth_right[truth_right[:, 1] < gap_rows[0]], truth_right[truth_right[:, 1] > gap_rows[1]]
+    return draw([truth_left]), draw([before, after]), truth_left, truth_right, right_visible
+
+
+def test_a_gap_in_one_view_only_is_crossed_along_the_other_view():
+    # 75 rows missing in the right mask: longer than its search bridges (tau_O = 62 px), so alone
+    # it stops there and the thread is too short to grasp.
+    camera = StereoCamera.default(W, H)
+    left, right, truth_left, truth_right, right_visible = _gap_in_right_view((200, 275), 31.5)
+    alone = order_stereo(left, right, truth_left[0], camera, OrderingParams(stereo_fill_max_gap_px=0))
+    assert alone.right[-1, 1] < 202 and alone.filled == (0, 0)
+    assert alone.right_result.status == "free_end"
+
+    result = order_stereo(left, right, truth_left[0], camera, OrderingParams(stereo_fill_max_gap_px=100))
+    check_follows(result.left, truth_left, tolerance=1.5)
+    assert result.filled[0] == 0 and result.filled[1] > 100
+    assert result.right[-1, 1] > 420  # on to the end
+    filled = result.right[-result.filled[1] :]
+    assert not np.any((filled[:, 1] > 203) & (filled[:, 1] < 272)), "a point made up inside the gap"
+    # Each filled point is the right mask's own centre on its row: the disparity beyond the gap
+    # (31.5 px, not the 30 px before it) is measured there, not copied from before the gap.
+    true_u = np.interp(filled[:, 1], truth_right[right_visible, 1], truth_right[right_visible, 0])
+    assert np.max(np.abs(filled[:, 0] - true_u)) <= 0.75
+
+
+def test_the_other_view_is_followed_only_across_gaps_up_to_the_limit():
+    camera = StereoCamera.default(W, H)
+    left, right, truth_left, _, _ = _gap_in_right_view((200, 275))
+    result = order_stereo(left, right, truth_left[0], camera)  # default limit: 60 px
+    assert result.filled == (0, 0) and result.right[-1, 1] < 202
+
+
+def test_the_other_view_adds_nothing_this_views_mask_does_not_show():
+    # The right view's thread really ends at row 200 (nothing below it in the right mask).
+    camera = StereoCamera.default(W, H)
+    truth_left = line((250, 60), (330, 430))
+    right = draw([truth_left[truth_left[:, 1] < 200] - [30, 0]])
+    result = order_stereo(draw([truth_left]), right, truth_left[0], camera)
+    assert result.filled == (0, 0) and result.right[-1, 1] < 202
+
+
 def test_params_scale_with_the_image_width():
     truth = line((200, 200), (1000, 700))
     mask = draw([truth], width=5, shape=(1024, 1280))

@@ -1,0 +1,205 @@
+"""Stereo-guided continuation: carry one view's sequence across a mask gap the other view got past.
+
+A predicted mask often loses a stretch of the thread (low contrast at a
+crossing, a specular highlight). Each view's search decides alone whether to
+bridge such a gap, and its guards rightly refuse many. When one view stops
+there and the other goes on, the reconstruction pairs nothing beyond the stop,
+and the thread comes out shorter than the grasp's reserved length: no grasp.
+In a rectified pair the view that went on shows where the thread lies in the
+stopped one: on the same rows, shifted by the disparity.
+:func:`continue_from_other_view` walks the other view's sequence beyond the
+point matching the stop, shifts it by the disparity measured where both views
+still agree, and keeps the shifted points that this view's own mask confirms,
+each moved to the centre of the mask run it lands on, so that the depth there
+is measured, not copied. Points without mask support are not kept: the gap
+stays a jump, which the reconstruction treats as a hidden stretch.
+
+It adds no thread this view's mask does not show, stops once more than
+``max_gap`` px of the other view's path in a row find no mask, and follows the
+disparity as it changes along the thread (the thread rises over crossings).
+It does follow a gap the other view bridged: in most gaps of predicted masks
+both views lose the thread at the same place and only one view's search
+bridges it. On 900 fresh frames with the shipped int8 M-oST this took 844
+grasps within 5 mm against 836 without it, and turned two refusals into grasps
+8 mm along the thread from the true point, where the other view had bridged to
+the wrong strand (see the README's results).
+
+Shapes and units: sequences (N, 2) float64 (u, v) in pixels from the cut tip;
+masks (H, W), nonzero = thread; disparity d = u_left - u_right > 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Longest step (px) of the guiding sequence that counts as following the thread (searches
+#: sample the centreline about 1 px apart; a longer step jumps over an unseen stretch).
+GUIDE_MAX_STEP_PX = 3.0
+#: Samples at the end of the stopped sequence that measure the disparity to carry over.
+TAIL_SAMPLES = 80
+#: How fast the carried disparity follows the snapped points (fraction per sample).
+DISPARITY_FOLLOW = 0.2
+
+
+def arc_length(points: np.ndarray) -> np.ndarray:
+    """(N,) cumulative length (px) along an (N, 2) polyline, 0 at its first point."""
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def row_disparities(
+    points: np.ndarray,
+    point_arc: np.ndarray,
+    guide: np.ndarray,
+    sign: float,
+    d_range: tuple[float, float],
+    min_angle: float,
+) -> np.ndarray:
+    """Disparity (px) of each of ``points`` to the ``guide`` polyline on its row; NaN where none.
+
+    ``points`` (N, 2) lie at arc lengths ``point_arc`` (N,) from the tip. A row counts where
+    the guide crosses it within ``d_range`` and at least ``min_angle`` (rad) steep; of several
+    such crossings the one nearest in arc length is taken (both views' arc lengths from the
+    tip differ by little more than the change of disparity).
+    """
+    guide_arc = arc_length(guide)[:-1]
+    start, stop = guide[:-1], guide[1:]
+    low, high = points[:, 1].min(), points[:, 1].max()
+    near_rows = (np.maximum(start[:, 1], stop[:, 1]) >= low) & (np.minimum(start[:, 1], stop[:, 1]) <= high)
+    start, stop, guide_arc = start[near_rows], stop[near_rows], guide_arc[near_rows]
+    if not len(start):
+        return np.full(len(points), np.nan)
+    rise = stop[:, 1] - start[:, 1]
+    length = np.linalg.norm(stop - start, axis=1)
+    steep = np.abs(rise) >= np.sin(min_angle) * np.maximum(length, 1e-9)
+    along = (points[:, 1:2] - start[:, 1]) / np.where(rise == 0, np.nan, rise)
+    u_cross = start[:, 0] + along * (stop[:, 0] - start[:, 0])
+    disparity = sign * (u_cross - points[:, 0:1])
+    usable = (along >= 0) & (along <= 1) & steep & (disparity >= d_range[0]) & (disparity <= d_range[1])
+    arc_gap = np.where(usable, np.abs(guide_arc - point_arc[:, None]), np.inf)
+    nearest = np.argmin(arc_gap, axis=1)
+    rows = np.arange(len(points))
+    return np.where(usable[rows, nearest], disparity[rows, nearest], np.nan)
+
+
+def snap_to_mask_runs(mask: np.ndarray, points: np.ndarray, radius: float, max_run: float) -> np.ndarray:
+    """(N,) column of the mask run nearest each (u, v) of ``points`` on its row; NaN if none is
+    within ``radius`` px.
+
+    A short run (at most ``max_run`` px: the thread crosses the row) gives its centre; a longer
+    one (the thread runs along the row) says nothing about the column, which is then ``u``
+    clipped to the run.
+    """
+    height, width = mask.shape
+    reach = int(np.ceil(radius + max_run)) + 1
+    offsets = np.arange(-reach, reach + 1)
+    rows = np.rint(points[:, 1]).astype(int)[:, None]
+    cols = np.rint(points[:, 0]).astype(int)[:, None] + offsets
+    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    on = np.zeros(cols.shape, dtype=bool)
+    on[inside] = mask[np.broadcast_to(rows, cols.shape)[inside], cols[inside]] > 0
+    u = points[:, 0:1]
+    distance = np.where(on, np.abs(cols - u), np.inf)
+    nearest = np.argmin(distance, axis=1)
+    found = distance[np.arange(len(points)), nearest] <= radius
+    # Run around the nearest on-pixel: last off-pixel before it and first one after it.
+    position = np.broadcast_to(np.arange(cols.shape[1]), cols.shape)
+    last_off = np.maximum.accumulate(np.where(on, -1, position), axis=1)
+    next_off = np.minimum.accumulate(np.where(on, cols.shape[1], position)[:, ::-1], axis=1)[:, ::-1]
+    rows_index = np.arange(len(points))
+    run_start = cols[rows_index, 0] + last_off[rows_index, nearest] + 1
+    run_end = cols[rows_index, 0] + next_off[rows_index, nearest] - 1
+    centre = np.where(
+        run_end - run_start + 1 > max_run,
+        np.clip(points[:, 0], run_start, run_end),
+        0.5 * (run_start + run_end),
+    )
+    return np.where(found, centre, np.nan)
+
+
+def continue_from_other_view(
+    own: np.ndarray,
+    own_mask: np.ndarray,
+    guide: np.ndarray,
+    sign: float,
+    d_range: tuple[float, float],
+    *,
+    snap_radius: float = 2.0,
+    max_run: float = 6.0,
+    max_gap: float = 60.0,
+    min_resume: int = 10,
+    min_angle: float = np.radians(10.0),
+) -> np.ndarray:
+    """Points to append to ``own`` that continue it along ``guide``, the other view's sequence.
+
+    Parameters
+    ----------
+    own : (N, 2) float64
+        This view's visible sequence from the cut tip (its search stopped).
+    own_mask : (H, W) uint8 or bool
+        This view's mask, nonzero = thread.
+    guide : (M, 2) float64
+        The other view's ordered points from the cut tip, about 1 px apart, gaps it bridged
+        included.
+    sign : float
+        +1 if this view is the right one (u_own = u_guide - d), -1 if it is the left one.
+    d_range : (2,) float
+        Disparity limits (px) of the working depth range.
+    snap_radius, max_run : float
+        A shifted point is kept where a mask run of its row lies within ``snap_radius`` px
+        (see :func:`snap_to_mask_runs` for ``max_run``).
+    max_gap : float
+        The walk ends after this many px of guide in a row without mask support.
+    min_resume : int
+        Supported points found after a gap count only as a run of at least this many.
+    min_angle : float
+        Rows crossing the guide flatter than this (rad) do not measure the disparity.
+
+    Returns
+    -------
+    (K, 2) float64
+        The continuation in this view, empty when there is none; a jump separates it from
+        ``own`` where this view's mask has its gap.
+    """
+    empty = np.empty((0, 2))
+    if len(own) < min_resume or len(guide) < min_resume:
+        return empty
+    tail = slice(max(0, len(own) - TAIL_SAMPLES), len(own))
+    measured = row_disparities(own[tail], arc_length(own)[tail], guide, sign, d_range, min_angle)
+    measured = measured[np.isfinite(measured)]
+    if measured.size < 5:
+        return empty
+    disparity = float(np.median(measured[-15:]))
+    shift = np.array([sign * disparity, 0.0])
+    distance = np.linalg.norm(guide - (own[-1] + shift), axis=1)
+    matched = int(np.argmin(distance))
+    if distance[matched] > snap_radius + 1.0:
+        return empty
+    steps = np.linalg.norm(np.diff(guide[matched:], axis=0), axis=1)
+    followed = np.flatnonzero(steps > GUIDE_MAX_STEP_PX)
+    ahead = guide[matched + 1 : matched + 1 + (followed[0] if followed.size else len(steps))]
+    walked = np.cumsum(steps[: len(ahead)])
+    if len(ahead) < min_resume:
+        return empty
+    snapped = snap_to_mask_runs(own_mask, ahead - shift, snap_radius + 2.0, max_run)
+
+    kept: list[tuple[float, float]] = []
+    run: list[tuple[float, float]] = []
+    gap_start = None
+    for k in range(len(ahead)):  # one pass along the guide, following the disparity
+        column = ahead[k, 0] - sign * disparity
+        if np.isnan(snapped[k]) or abs(snapped[k] - column) > snap_radius:
+            if gap_start is None:
+                gap_start = walked[k]
+                if len(run) >= min_resume or not kept:
+                    kept.extend(run)
+                run = []
+            if walked[k] - gap_start > max_gap:
+                break
+            continue
+        gap_start = None
+        run.append((float(snapped[k]), float(ahead[k, 1])))
+        disparity += DISPARITY_FOLLOW * (sign * (ahead[k, 0] - snapped[k]) - disparity)
+    if len(run) >= min_resume:
+        kept.extend(run)
+    return np.array(kept) if len(kept) >= min_resume else empty
