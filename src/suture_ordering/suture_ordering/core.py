@@ -196,6 +196,8 @@ def order_stereo(
     -------
     StereoOrdering
         ``left`` (N, 2) and ``right`` (M, 2) float64 (u, v) from the cut tip, and per-view results.
+        A view whose search stopped where the other's went on is continued along the other
+        view, on its own mask only (:mod:`suture_ordering.stereo_fill`; ``filled`` counts it).
 
     Raises
     ------
@@ -222,7 +224,7 @@ def order_stereo(
         right_prepared.clean.mask, left.tip, (d_min, d_max), scaled.row_tolerance, scaled.tip_radius
     )
     right = _search(right_prepared, start, "epipolar", started)
-    # A gap in one view's mask that the other view does not have: follow the other view across it.
+    # Where one view's search stopped at a gap and the other's went on, follow the other view.
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
     sequences, filled = [], []
     for own, prepared, guide, sign in views:

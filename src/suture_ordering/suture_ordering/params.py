@@ -158,6 +158,9 @@ class OrderingParams:
             raise ValueError(
                 f"OrderingParams.zone_margin_px must be a non-negative integer, got {self.zone_margin_px}"
             )
+        gap = self.stereo_fill_max_gap_px
+        if not (isinstance(gap, (int, float)) and math.isfinite(gap) and gap >= 0):
+            raise ValueError(f"OrderingParams.stereo_fill_max_gap_px must be >= 0 (0: off), got {gap!r}")
         if self.max_hole_area_px < 0:
             raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
         if int(self.max_steps) != self.max_steps or self.max_steps < 1:

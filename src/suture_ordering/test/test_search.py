@@ -149,6 +149,8 @@ def test_params_are_validated():
         OrderingParams(eps1_range=(5.0, 1.0))
     with pytest.raises(ValueError, match="mu"):
         OrderingParams(mu=0.0)
+    with pytest.raises(ValueError, match="stereo_fill_max_gap_px"):
+        OrderingParams(stereo_fill_max_gap_px=-1.0)
     assert OrderingParams().with_updates(grid_size=1).grid_size == 1
 
 
