@@ -23,7 +23,7 @@ from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
 from suture_ordering.errors import InvalidInputError
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
-from suture_ordering.stereo_fill import continue_from_other_view
+from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
 from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
 
 
@@ -73,8 +73,9 @@ class StereoOrdering:
     nothing under the occluder can be seen, matched between the views or triangulated.
     ``left_result`` / ``right_result``: the per-view :class:`OrderingResult` (with the gap
     interpolation in ``points``, status and diagnostics) of each view's own search.
-    ``filled``: points appended to ``left`` and ``right`` by following the other view across a
-    gap in this view's mask (:mod:`suture_ordering.stereo_fill`); 0 where none was needed.
+    ``filled``: points of ``left`` and ``right`` found by following the other view, across a gap
+    in this view's mask or round a loop this view's search cut across
+    (:mod:`suture_ordering.stereo_fill`); 0 where none was needed.
     """
 
     left: np.ndarray
@@ -197,7 +198,8 @@ def order_stereo(
     StereoOrdering
         ``left`` (N, 2) and ``right`` (M, 2) float64 (u, v) from the cut tip, and per-view results.
         A view whose search stopped where the other's went on is continued along the other
-        view, on its own mask only (:mod:`suture_ordering.stereo_fill`; ``filled`` counts it).
+        view, and one that cut across a loop the other went round gets the loop back, on its
+        own mask only (:mod:`suture_ordering.stereo_fill`; ``filled`` counts those points).
 
     Raises
     ------
@@ -240,6 +242,14 @@ def order_stereo(
             )
         sequences.append(np.vstack([own.visible, extra]))
         filled.append(len(extra))
+    # Where one view went round its loop and the other cut across, put the loop back.
+    if params.stereo_fill_max_gap_px > 0:
+        for index, (_, prepared, _, sign) in enumerate(views):
+            other = sequences[1 - index]
+            sequences[index], spliced = splice_skipped_stretch(
+                sequences[index], prepared.clean.mask, other, sign, (d_min, d_max)
+            )
+            filled[index] += spliced
     return StereoOrdering(
         left=sequences[0],
         right=sequences[1],

@@ -24,6 +24,13 @@ took 846 grasps within 5 mm against 836 without it, and turned two refusals
 into grasps 7.8 and 8.7 mm along the thread from the true point, where the other
 view had bridged to the wrong strand (see the README's results).
 
+:func:`splice_skipped_stretch` mends the other way one view's search can go
+wrong where the other's did not: at its own crossing a thread runs straight on
+into its loop, and where the mask has a gap near the crossing a search can take
+the other arm and skip the loop. Both sequences then end at the same place, one
+much shorter; the loop is put back from the other view where this view's mask
+shows it.
+
 Shapes and units: sequences (N, 2) float64 (u, v) in pixels from the cut tip;
 masks (H, W), nonzero = thread; disparity d = u_left - u_right > 0.
 """
@@ -203,3 +210,75 @@ def continue_from_other_view(
     if len(run) >= min_resume:
         kept.extend(run)
     return np.array(kept) if len(kept) >= min_resume else empty
+
+
+def splice_skipped_stretch(
+    own: np.ndarray,
+    own_mask: np.ndarray,
+    guide: np.ndarray,
+    sign: float,
+    d_range: tuple[float, float],
+    *,
+    max_ratio: float = 0.85,
+    window: int = 12,
+    max_distance: float = 3.0,
+    min_skip: int = 40,
+    min_support: float = 0.6,
+    snap_radius: float = 2.0,
+    max_run: float = 6.0,
+    min_angle: float = np.radians(10.0),
+) -> tuple[np.ndarray, int]:
+    """``own`` with the stretch of ``guide`` it skipped put back, and the number of points put back.
+
+    At its own crossing a thread runs straight on into its loop; where the segmenter left a
+    gap near the crossing, one view's search can take the other arm and skip the loop, while
+    the other view goes round it. Both sequences then end at the same place, one much shorter.
+    ``own`` (N, 2), at most ``max_ratio`` of the ``guide``'s (M, 2) length, is walked from the
+    tip against the guide shifted by the disparity (measured on the first rows, then followed):
+    each point must match a guide point within ``max_distance`` px among the next ``window``;
+    where none does but one at least ``min_skip`` samples further on does, ``own`` skipped the
+    guide's stretch in between. It is put back, snapped to this view's mask like
+    :func:`continue_from_other_view` does, only if at least ``min_support`` of it lies on the
+    mask (the loop is there, the search only missed it); otherwise ``own`` is returned as it is.
+    ``sign``, ``d_range``, ``snap_radius``, ``max_run``, ``min_angle`` as there.
+    """
+    if len(own) < 20 or len(guide) < 20 or arc_length(own)[-1] > max_ratio * arc_length(guide)[-1]:
+        return own, 0
+    head = slice(0, min(len(own), TAIL_SAMPLES))
+    measured = row_disparities(own[head], arc_length(own)[head], guide, sign, d_range, min_angle)
+    measured = measured[np.isfinite(measured)]
+    if measured.size < 5:
+        return own, 0
+    disparity = float(np.median(measured))
+    matched = 0
+    for i in range(len(own)):  # one pass along the shorter sequence (it is rare: see max_ratio)
+        target = own[i] + np.array([sign * disparity, 0.0])
+        near = guide[matched : matched + window]
+        distance = np.linalg.norm(near - target, axis=1)
+        nearest = int(np.argmin(distance))
+        if distance[nearest] <= max_distance:
+            matched += nearest
+            if abs(guide[matched, 1] - own[i, 1]) < 0.5:  # same row: the disparity is measured here
+                disparity += DISPARITY_FOLLOW * (sign * (guide[matched, 0] - own[i, 0]) - disparity)
+            continue
+        distance = np.linalg.norm(guide[matched:] - target, axis=1)
+        found = int(np.argmin(distance))
+        if distance[found] > max_distance:
+            return own, 0
+        if found < min_skip:
+            matched += found
+            continue
+        shift = np.array([sign * disparity, 0.0])
+        stretch = guide[matched + 1 : matched + found]
+        snapped = snap_to_mask_runs(own_mask, stretch - shift, snap_radius, max_run)
+        on_mask = np.isfinite(snapped)
+        if on_mask.mean() < min_support:
+            return own, 0
+        inserted = np.column_stack([snapped[on_mask], stretch[on_mask, 1]])
+        # Near the crossing both passes match, so the loss of track comes a few points late or
+        # early: the stretch replaces the points between those nearest its two ends.
+        before = max(0, i - window)
+        first = before + int(np.argmin(np.linalg.norm(own[before : i + 1] - inserted[0], axis=1)))
+        last = i + int(np.argmin(np.linalg.norm(own[i : i + window] - inserted[-1], axis=1)))
+        return np.vstack([own[:first], inserted, own[last + 1 :]]), len(inserted)
+    return own, 0

@@ -27,6 +27,7 @@ from suture_ordering import (
     order_sequence,
     order_stereo,
 )
+from suture_ordering.stereo_fill import splice_skipped_stretch
 
 W, H = 640, 480
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
@@ -319,6 +320,31 @@ def test_the_other_view_adds_nothing_this_views_mask_does_not_show():
     right = draw([truth_left[truth_left[:, 1] < 200] - [30, 0]])
     result = order_stereo(draw([truth_left]), right, truth_left[0], camera)
     assert result.filled == (0, 0) and result.right[-1, 1] < 202
+
+
+def _loop_thread() -> tuple[np.ndarray, np.ndarray]:
+    """A thread crossing itself (a nodal cubic: the crossing at t = -1 and t = 1), ~1 px apart,
+    and whether each point lies on the loop between the two passes."""
+    t = np.linspace(-1.6, 1.6, 20000)
+    curve = np.column_stack([320 + 100 * (t**2 - 1), 240 + 60 * (t**3 - t)])
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(curve, axis=0).T))])
+    keep = np.searchsorted(arc, np.arange(0.0, arc[-1], 1.0))
+    return curve[keep], np.abs(t[keep]) < 1.0
+
+
+def test_a_loop_one_view_cut_across_is_put_back_from_the_other_view():
+    camera = StereoCamera.default(W, H)
+    truth, on_loop = _loop_thread()
+    shortcut = truth[~on_loop]  # the left search went straight from the first pass to the second
+    left_mask = draw([truth])
+    d_range = (camera.disparity(0.15), camera.disparity(0.05))
+    spliced, added = splice_skipped_stretch(shortcut, left_mask, truth - [30, 0], -1.0, d_range)
+    assert added >= 0.9 * on_loop.sum()
+    check_follows(spliced, truth, tolerance=1.0, coverage=0.99)
+
+    # The loop the other view went round is not in this view's mask: nothing is put back.
+    unchanged, added = splice_skipped_stretch(shortcut, draw([shortcut]), truth - [30, 0], -1.0, d_range)
+    assert added == 0 and unchanged is shortcut
 
 
 def test_params_scale_with_the_image_width():
