@@ -89,6 +89,24 @@ def row_disparities(
     return np.where(usable[rows, nearest], disparity[rows, nearest], np.nan)
 
 
+def _disparity_over(
+    own: np.ndarray,
+    part: slice,
+    guide: np.ndarray,
+    sign: float,
+    d_range: tuple[float, float],
+    min_angle: float,
+    recent: int | None = None,
+) -> float | None:
+    """Median disparity (px) of ``own[part]`` to ``guide`` over its well-conditioned rows (the last
+    ``recent`` of them if given), or None where fewer than 5 rows measure it."""
+    measured = row_disparities(own[part], arc_length(own)[part], guide, sign, d_range, min_angle)
+    measured = measured[np.isfinite(measured)]
+    if measured.size < 5:
+        return None
+    return float(np.median(measured if recent is None else measured[-recent:]))
+
+
 def snap_to_mask_runs(mask: np.ndarray, points: np.ndarray, radius: float, max_run: float) -> np.ndarray:
     """(N,) column of the mask run nearest each (u, v) of ``points`` on its row; NaN if none is
     within ``radius`` px.
@@ -172,11 +190,9 @@ def continue_from_other_view(
     if len(own) < min_resume or len(guide) < min_resume:
         return empty
     tail = slice(max(0, len(own) - TAIL_SAMPLES), len(own))
-    measured = row_disparities(own[tail], arc_length(own)[tail], guide, sign, d_range, min_angle)
-    measured = measured[np.isfinite(measured)]
-    if measured.size < 5:
+    disparity = _disparity_over(own, tail, guide, sign, d_range, min_angle, recent=15)
+    if disparity is None:
         return empty
-    disparity = float(np.median(measured[-15:]))
     shift = np.array([sign * disparity, 0.0])
     distance = np.linalg.norm(guide - (own[-1] + shift), axis=1)
     matched = int(np.argmin(distance))
@@ -244,12 +260,9 @@ def splice_skipped_stretch(
     """
     if len(own) < 20 or len(guide) < 20 or arc_length(own)[-1] > max_ratio * arc_length(guide)[-1]:
         return own, 0
-    head = slice(0, min(len(own), TAIL_SAMPLES))
-    measured = row_disparities(own[head], arc_length(own)[head], guide, sign, d_range, min_angle)
-    measured = measured[np.isfinite(measured)]
-    if measured.size < 5:
+    disparity = _disparity_over(own, slice(0, TAIL_SAMPLES), guide, sign, d_range, min_angle)
+    if disparity is None:
         return own, 0
-    disparity = float(np.median(measured))
     matched = 0
     for i in range(len(own)):  # one pass along the shorter sequence (it is rare: see max_ratio)
         target = own[i] + np.array([sign * disparity, 0.0])
