@@ -16,6 +16,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from suture_segmentation.model import SutureUNet
@@ -126,9 +127,27 @@ def onnx_metadata(path: str | Path) -> dict[str, str]:
     return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
 
 
-def export_onnx(model: SutureUNet, path: str | Path) -> Path:
-    """Write the ONNX model to ``path``; returns the path."""
+def export_onnx(
+    model: SutureUNet,
+    path: str | Path,
+    metadata: dict[str, str] | None = None,
+    calibration: list[np.ndarray] | None = None,
+) -> Path:
+    """Write the ONNX model to ``path``; returns the path.
+
+    ``metadata`` goes to the model's metadata_props (``suture-seg export`` records its command).
+    With ``calibration`` images ((H, W, 3) uint8 RGB of the target camera) the model is
+    quantised to int8 (:func:`suture_segmentation.quantize.quantized_onnx_bytes`).
+    """
+    if calibration is None:
+        exported = onnx_bytes(model)
+    else:
+        from suture_segmentation.quantize import quantized_onnx_bytes  # it builds on onnx_bytes
+
+        exported = quantized_onnx_bytes(model, calibration)
+    if metadata:
+        exported = with_metadata(exported, metadata)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(onnx_bytes(model))
+    path.write_bytes(exported)
     return path

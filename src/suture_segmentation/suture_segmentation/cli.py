@@ -185,21 +185,18 @@ def _run_evaluate(args: argparse.Namespace) -> int:
 
 
 def _run_export(args: argparse.Namespace, argv: list[str]) -> int:
-    from suture_segmentation.checkpoint import load_checkpoint, onnx_bytes, with_metadata
+    from suture_segmentation.checkpoint import export_onnx, load_checkpoint
 
     if args.int8 != bool(args.calibration_images):
         raise ValueError("--int8 and --calibration-images DIR (frames of the target camera) go together")
     model, _ = load_checkpoint(args.weights)
+    frames = None
     if args.int8:
-        from suture_segmentation.quantize import calibration_images, quantized_onnx_bytes
+        from suture_segmentation.quantize import calibration_images
 
         frames = calibration_images(args.calibration_images, args.calibration_count)
-        exported = quantized_onnx_bytes(model, frames)
-    else:
-        exported = onnx_bytes(model)
-    path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(with_metadata(exported, {"command": "suture-seg " + shlex.join(argv)}))
+    command = {"command": "suture-seg " + shlex.join(argv)}
+    path = export_onnx(model, args.out, metadata=command, calibration=frames)
     print(f"suture-seg export: wrote {path} ({path.stat().st_size / 1024:.0f} KiB)")
     return 0
 
