@@ -22,6 +22,7 @@ from collections import deque
 
 import rclpy
 from geometry_msgs.msg import PoseStamped
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -32,6 +33,7 @@ from suture_common.messages import MessageConversionError, pose_message, pose_to
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, to_rclpy
 
 _KEPT_EVENTS = 64
+_ACK_TIMEOUT_S = 1.0
 
 
 class CrtkRosTransport:
@@ -68,7 +70,15 @@ class CrtkRosTransport:
             self._executor.spin()
 
     def close(self) -> None:
-        """Stop the feedback thread and destroy the helper node."""
+        """Deliver what was sent, stop the feedback thread and destroy the helper node.
+
+        A hold sent while the node shuts down (Ctrl-C during a motion) must reach the arm before
+        the process exits: the reliable publishers wait up to ``_ACK_TIMEOUT_S`` for the arm's
+        acknowledgement (without it the goal was now and then lost with the exiting process).
+        """
+        for publisher in (self._goal, self._jaw):
+            with contextlib.suppress(Exception):  # closing must not raise: ROS may be gone already
+                publisher.wait_for_all_acked(Duration(seconds=_ACK_TIMEOUT_S))
         self._executor.shutdown(timeout_sec=5.0)
         self._thread.join(timeout=5.0)
         self._feedback.destroy_node()
