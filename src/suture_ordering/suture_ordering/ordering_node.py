@@ -46,8 +46,8 @@ from suture_common.ros import (
     SENSOR_DATA_QOS,
     ThrottledWarnings,
     run_node,
+    serialized,
     stamp_or_drop,
-    to_rclpy,
 )
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
@@ -217,7 +217,7 @@ class OrderingNode(Node):
             (self._left_pub, result.left, left.header),
             (self._right_pub, result.right, right.header),
         ):
-            publisher.publish(to_rclpy(polygon_message(points, stamp_ns, header.frame_id)))
+            publisher.publish(serialized(polygon_message(points, stamp_ns, header.frame_id)))
         self.frames_published += 1
 
 

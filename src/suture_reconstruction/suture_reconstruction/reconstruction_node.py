@@ -47,6 +47,7 @@ from suture_common.ros import (
     SENSOR_DATA_QOS,
     ThrottledWarnings,
     run_node,
+    serialized,
     stamp_or_drop,
     to_rclpy,
 )
@@ -200,7 +201,7 @@ class ReconstructionNode(Node):
         pose = to_rclpy(pose_message(result.grasp_position, result.grasp_quaternion, stamp_ns, self.frame_id))
         self._pose.publish(pose)
         self._points.publish(point_cloud(result.points, pose.header))
-        self._path.publish(to_rclpy(path_message(result.path, stamp_ns, self.frame_id)))
+        self._path.publish(serialized(path_message(result.path, stamp_ns, self.frame_id)))
         self._markers.publish(markers(result.path, result.grasp_position, pose.header))
 
     def _drop(self, reason: str, text: str) -> None:

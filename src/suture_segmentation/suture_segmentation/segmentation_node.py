@@ -49,8 +49,8 @@ from suture_common.ros import (
     ThrottledWarnings,
     run_node,
     sensor_data_qos,
+    serialized,
     stamp_or_drop,
-    to_rclpy,
 )
 from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import LEFT_IMAGE, LEFT_MASK, RIGHT_IMAGE, RIGHT_MASK
@@ -179,7 +179,7 @@ class SegmentationNode(Node):
             (self._left_pub, left_mask, left.header),
             (self._right_pub, right_mask, right.header),
         ):
-            publisher.publish(to_rclpy(image_message(mask, "mono8", stamp_ns, header.frame_id)))
+            publisher.publish(serialized(image_message(mask, "mono8", stamp_ns, header.frame_id)))
         self.frames += 1
         return left_mask, right_mask
 
