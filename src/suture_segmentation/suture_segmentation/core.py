@@ -114,6 +114,8 @@ class Segmenter:
 
     def probabilities(self, images: list[np.ndarray]) -> np.ndarray:
         """(B, H, W) float32 suture probability of equally sized images (one batch)."""
+        if self.backend == "onnx" and self.input_size is None:
+            return self._onnx_probabilities(image_array(images))
         batch = image_batch(images)
         height, width = batch.shape[-2:]
         if self.input_size is not None and (width, height) != self.input_size:
@@ -129,6 +131,23 @@ class Segmenter:
         if suture.shape[-2:] != (height, width):
             suture = functional.interpolate(suture[:, None], size=(height, width), mode="bilinear")[:, 0]
         return suture.numpy()
+
+    def _onnx_probabilities(self, batch: np.ndarray) -> np.ndarray:
+        """ONNX Runtime on a (B, 3, H, W) batch with numpy around it, not torch: torch's OpenMP
+        workers spun after each frame's few milliseconds of pre- and post-processing, beside the
+        runtime's own threads (10 % of a core in the node graph at 5 frames/s)."""
+        height, width = batch.shape[-2:]
+        pad_h, pad_w = (-height) % STRIDE, (-width) % STRIDE
+        if pad_h or pad_w:  # replicate the last row and column, as pad_to_multiple does
+            batch = np.pad(batch, ((0, 0), (0, 0), (0, pad_h), (0, pad_w)), mode="edge")
+        (logits,) = self._session.run(["logits"], {"image": batch})
+        logits = logits[:, :, :height, :width]
+        with np.errstate(over="ignore"):  # exp overflows to inf far from the boundary: p = 0
+            if logits.shape[1] == 2:  # softmax of two classes = the logistic of their difference
+                other = logits[:, 1 - SUTURE]
+                return (1.0 / (1.0 + np.exp(other - logits[:, SUTURE]))).astype(np.float32)
+            shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
+            return (shifted[:, SUTURE] / shifted.sum(axis=1)).astype(np.float32)
 
     def segment(self, images: list[np.ndarray]) -> list[np.ndarray]:
         """(H, W) uint8 masks (0 or 255) of equally sized images, run as one batch."""
@@ -152,6 +171,11 @@ class Segmenter:
 
 
 def image_batch(images: list[np.ndarray]) -> torch.Tensor:
+    """:func:`image_array` as a torch tensor (the torch backend, training, calibration)."""
+    return torch.from_numpy(image_array(images))
+
+
+def image_array(images: list[np.ndarray]) -> np.ndarray:
     """(B, 3, H, W) float32 in [0, 1] from uint8 RGB or grey images; raises SegmentationInputError."""
     if not images:
         raise SegmentationInputError("no images to segment")
@@ -172,8 +196,9 @@ def image_batch(images: list[np.ndarray]) -> torch.Tensor:
     if any(a.shape != arrays[0].shape for a in arrays):
         sizes = ", ".join(f"{a.shape[1]}x{a.shape[0]}" for a in arrays)
         raise SegmentationInputError(f"images of one batch must have one size, got {sizes}")
-    batch = torch.from_numpy(np.stack(arrays)).permute(0, 3, 1, 2)
-    return batch.float().div_(255.0).contiguous()
+    batch = np.ascontiguousarray(np.stack(arrays).transpose(0, 3, 1, 2), dtype=np.float32)
+    batch /= np.float32(255.0)
+    return batch
 
 
 @functools.cache
