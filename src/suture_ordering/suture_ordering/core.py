@@ -230,9 +230,9 @@ def order_stereo(
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
     sequences, filled = [], []
     for own, prepared, guide, sign in views:
-        extra = np.empty((0, 2))
+        sequence, added = own.visible, 0
         if params.stereo_fill_max_gap_px > 0 and own.status == "free_end":
-            extra = continue_from_other_view(
+            sequence, added = continue_from_other_view(
                 own.visible,
                 prepared.clean.mask,
                 guide.points,
@@ -240,8 +240,8 @@ def order_stereo(
                 (d_min, d_max),
                 max_gap=params.stereo_fill_max_gap_px * prepared.scaled.scale,
             )
-        sequences.append(np.vstack([own.visible, extra]))
-        filled.append(len(extra))
+        sequences.append(sequence)
+        filled.append(added)
     # Where one view went round its loop and the other cut across, put the loop back.
     if params.stereo_fill_max_gap_px > 0:
         for index, (_, prepared, _, sign) in enumerate(views):

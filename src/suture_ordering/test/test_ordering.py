@@ -306,6 +306,23 @@ def test_a_gap_in_one_view_only_is_crossed_along_the_other_view():
     assert np.max(np.abs(filled[:, 0] - true_u)) <= 0.75
 
 
+def test_a_stop_that_ends_in_a_hook_is_continued_from_before_the_hook():
+    # The right mask's thread ends at the gap in an 8 px hook (a ragged mask end), so its search
+    # ends 6 px off the path the left view shows; the hook is given up, the rest continued.
+    camera = StereoCamera.default(W, H)
+    left, _, truth_left, truth_right, right_visible = _gap_in_right_view((200, 275), 31.5)
+    before, after = truth_right[truth_right[:, 1] < 200], truth_right[truth_right[:, 1] > 275]
+    hook = line(tuple(before[-1]), (before[-1][0] + 8, before[-1][1] + 2))
+    right = draw([before, hook, after])
+    params = OrderingParams(stereo_fill_max_gap_px=100)
+    result = order_stereo(left, right, truth_left[0], camera, params)
+    assert result.right_result.visible[-1, 0] - before[-1][0] > 5  # the search ended on the hook
+    assert result.filled[1] > 100 and result.right[-1, 1] > 420
+    true_u = np.interp(result.right[:, 1], truth_right[right_visible, 1], truth_right[right_visible, 0])
+    # at most the hook's root is kept (2.1 px off the thread); its tip lies 8 px off
+    assert np.max(np.abs(result.right[:, 0] - true_u)) <= 2.5
+
+
 def test_the_other_view_is_followed_only_across_gaps_up_to_the_limit():
     camera = StereoCamera.default(W, H)
     left, right, truth_left, _, _ = _gap_in_right_view((200, 275))
