@@ -207,7 +207,7 @@ def continue_from_other_view(
     # The disparity from this view's last rows; where that finds no way on, from the rows
     # before its last HOOK_SAMPLES points (an end hook's own rows bias it).
     hooked = max(min_resume, len(own) - HOOK_SAMPLES)
-    for stop in (len(own), hooked):
+    for stop in dict.fromkeys((len(own), hooked)):  # one pass when own is too short for a hook
         tail = slice(max(0, stop - DISPARITY_SAMPLES), stop)
         disparity = _disparity_over(own, tail, guide, sign, d_range, min_angle, recent=15)
         if disparity is None:

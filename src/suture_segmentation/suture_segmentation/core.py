@@ -137,17 +137,13 @@ class Segmenter:
         workers spun after each frame's few milliseconds of pre- and post-processing, beside the
         runtime's own threads (10 % of a core in the node graph at 5 frames/s)."""
         height, width = batch.shape[-2:]
-        pad_h, pad_w = (-height) % STRIDE, (-width) % STRIDE
-        if pad_h or pad_w:  # replicate the last row and column, as pad_to_multiple does
-            batch = np.pad(batch, ((0, 0), (0, 0), (0, pad_h), (0, pad_w)), mode="edge")
-        (logits,) = self._session.run(["logits"], {"image": batch})
+        padded, _ = pad_to_multiple(torch.from_numpy(batch))  # no torch work where none is needed
+        (logits,) = self._session.run(["logits"], {"image": padded.numpy()})
         logits = logits[:, :, :height, :width]
-        with np.errstate(over="ignore"):  # exp overflows to inf far from the boundary: p = 0
-            if logits.shape[1] == 2:  # softmax of two classes = the logistic of their difference
-                other = logits[:, 1 - SUTURE]
-                return (1.0 / (1.0 + np.exp(other - logits[:, SUTURE]))).astype(np.float32)
-            shifted = np.exp(logits - logits.max(axis=1, keepdims=True))
-            return (shifted[:, SUTURE] / shifted.sum(axis=1)).astype(np.float32)
+        # softmax of the suture class: 1 / sum_k exp(l_k - l_suture); far from the boundary
+        # exp overflows to inf and the probability is 0
+        with np.errstate(over="ignore"):
+            return (1.0 / np.exp(logits - logits[:, SUTURE : SUTURE + 1]).sum(axis=1)).astype(np.float32)
 
     def segment(self, images: list[np.ndarray]) -> list[np.ndarray]:
         """(H, W) uint8 masks (0 or 255) of equally sized images, run as one batch."""
