@@ -93,10 +93,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="WEIGHTS",
         help="segmentation model for --masks predicted: m_tosot (default, on-site), m_ost (legacy) or a .pt",
     )
+    parser.add_argument(
+        "--no-images",
+        action="store_true",
+        help="reconstruct from the sequences alone, without the photometric refinement by the images "
+        "(reconstruction_node's use_images false)",
+    )
     args = parser.parse_args(argv)
     try:
         summary = evaluate(
-            args.paths, masks=args.masks, sequences=args.sequences, seg_weights=args.seg_weights
+            args.paths,
+            masks=args.masks,
+            sequences=args.sequences,
+            seg_weights=args.seg_weights,
+            use_images=not args.no_images,
         )
         if args.json:
             with open(args.json, "w") as stream:

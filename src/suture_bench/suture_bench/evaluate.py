@@ -10,6 +10,9 @@ None, with the reason in ``notes``):
 * ``sequences="ground_truth"`` starts the 3D stage from the true ordered
   sequences (the visibility column dropped), isolating it; ``"predicted"`` runs the
   ordering stage on the masks.
+* ``use_images`` (default True, as ``reconstruction_node``'s parameter of that name)
+  gives the 3D stage the bag's rectified images, with which it refines the disparity
+  photometrically; False reconstructs from the sequences alone.
 
 Definitions (DESIGN.md): IoU, precision, recall and F1 pooled over the pixels of
 all frames; ordering success per ``suture_bench.ordering_metrics``; reconstruction
@@ -70,19 +73,23 @@ def evaluate(
     masks: str = "predicted",
     sequences: str = "predicted",
     seg_weights: str | None = None,
+    use_images: bool = True,
 ) -> dict:
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
     ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
     a shipped name, ``m_tosot`` or ``m_ost``); None is the stage's default (shipped M-ToSOT).
+    ``use_images``: refine the 3D stage's disparity with the images (module docstring).
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
-    stages = _Stages(masks, sequences, seg_weights)
+    stages = _Stages(masks, sequences, seg_weights, use_images)
     scoreboard = Scoreboard(ordering_ran=sequences == "predicted")
+    if not use_images:
+        scoreboard.tally.note("reconstruction: from the sequences alone (images not used)")
     for bag in find_bags(paths):
         try:
-            for frame in read_frames(bag, images=masks == "predicted"):
+            for frame in read_frames(bag, images=masks == "predicted" or use_images):
                 scoreboard.add(frame, _run_frame(frame, stages))
         except BagError as error:
             raise EvaluationError(str(error)) from error
@@ -97,14 +104,15 @@ class _Stages:
     :meth:`suture_segmentation.core.Segmenter.segment_pair`;
     ``order(left_mask, right_mask, tip_hint, camera)`` is
     :func:`suture_ordering.core.order_stereo` (``.left``/``.right`` (N, 2) sequences);
-    ``reconstruct(left, right, camera)`` is :func:`suture_reconstruction.core.reconstruct`
-    (``.path``, ``.grasp_position``).
+    ``reconstruct(left, right, camera, images=...)`` is
+    :func:`suture_reconstruction.core.reconstruct` (``.path``, ``.grasp_position``);
+    ``use_images``: whether it is given the frame's images.
     """
 
-    def __init__(self, masks: str, sequences: str, seg_weights: str | None) -> None:
+    def __init__(self, masks: str, sequences: str, seg_weights: str | None, use_images: bool = True) -> None:
         from suture_reconstruction.core import reconstruct
 
-        self.masks, self.sequences = masks, sequences
+        self.masks, self.sequences, self.use_images = masks, sequences, use_images
         self.segment: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
         self.order: Callable[..., Any] | None = None
         self.reconstruct = reconstruct
@@ -218,9 +226,12 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
         outputs.latency_ms["ordering"] = _elapsed_ms(start)
         sequences = outputs.sequences = (ordering.left, ordering.right)
 
+    images = None
+    if stages.use_images and frame.left_image is not None and frame.right_image is not None:
+        images = (frame.left_image, frame.right_image)
     start = time.perf_counter()
     try:
-        result = stages.reconstruct(sequences[0], sequences[1], frame.camera)
+        result = stages.reconstruct(sequences[0], sequences[1], frame.camera, images=images)
     except ValueError as error:
         outputs.latency_ms["reconstruction"] = _elapsed_ms(start)
         outputs.failure, outputs.detail = f"reconstruction: {type(error).__name__}", str(error)

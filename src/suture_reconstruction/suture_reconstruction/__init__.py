@@ -6,6 +6,7 @@ rclpy adapter (the only module here that imports rclpy).
 
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import (
+    ImagePairError,
     InvalidSequenceError,
     NoStereoOverlapError,
     ReconstructionError,
@@ -13,13 +14,16 @@ from suture_reconstruction.errors import (
     TooFewPointsError,
 )
 from suture_reconstruction.pairing import DisparitySmoothing, PairingParams, SelectionCosts
+from suture_reconstruction.photometric import PhotometricParams
 from suture_reconstruction.shape_graph import ShapeGraphParams
 
 __all__ = [
     "DisparitySmoothing",
+    "ImagePairError",
     "InvalidSequenceError",
     "NoStereoOverlapError",
     "PairingParams",
+    "PhotometricParams",
     "Reconstruction",
     "ReconstructionError",
     "ReconstructionParams",

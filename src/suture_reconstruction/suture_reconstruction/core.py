@@ -9,7 +9,11 @@ both call. Steps (paper Section II.B end and II.C):
    than ``max_jump_px`` is a jump over a hidden stretch, not observed thread;
 2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
    the disparity limits of the working depth range, and disparity
-   regularisation along the thread (:mod:`suture_reconstruction.pairing`).
+   regularisation along the thread (:mod:`suture_reconstruction.pairing`);
+   given the rectified images too, the disparity is then refined by matching
+   the thread's image along the rows (:mod:`suture_reconstruction.photometric`):
+   the mask-traced centrelines leave biases of 0.5-3 px over stretches, each
+   pixel 4-5 mm of depth at 110 mm with a 5 mm baseline.
    The depth must follow precise pairs closely: where the thread is lifted
    over the other strand 1 px of disparity is about 3 mm of depth, and a
    flattened lift is arc length missing before the grasp point, which moves
@@ -31,7 +35,8 @@ both call. Steps (paper Section II.B end and II.C):
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
-NoStereoOverlapError, ThreadTooShortError) and ``suture_common.camera.CameraModelError`` for an
+NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
+camera) and ``suture_common.camera.CameraModelError`` for an
 unusable camera.
 """
 
@@ -45,7 +50,12 @@ import numpy as np
 
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
-from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.errors import (
+    ImagePairError,
+    NoStereoOverlapError,
+    ReconstructionError,
+    TooFewPointsError,
+)
 from suture_reconstruction.pairing import (
     DisparitySmoothing,
     PairingParams,
@@ -54,6 +64,7 @@ from suture_reconstruction.pairing import (
     pair_sequences,
     regularise_disparity,
 )
+from suture_reconstruction.photometric import PhotometricParams, refine_disparity
 from suture_reconstruction.sequences import as_sequence, check_plausible, resample, smooth_sequence
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 
@@ -71,6 +82,8 @@ class ReconstructionParams:
     smoothing of the disparity along the thread, its ladder of smoothing
     lengths, the noise floor read from the sequences' roughness, outlier
     rejection and extrapolation beyond the first/last pair),
+    ``photometric`` (:class:`~suture_reconstruction.photometric.PhotometricParams`:
+    the refinement by the images, when :func:`reconstruct` is given them),
     ``min_pairs`` (fewer pairs: NoStereoOverlapError). Shape: ``vertex_step`` (m
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
@@ -85,6 +98,7 @@ class ReconstructionParams:
     max_jump_px: float = 4.0
     pairing: PairingParams = field(default_factory=PairingParams)
     disparity: DisparitySmoothing = field(default_factory=DisparitySmoothing)
+    photometric: PhotometricParams = field(default_factory=PhotometricParams)
     min_pairs: int = 8
     vertex_step: float = 0.0001
     shape: ShapeGraphParams = field(default_factory=ShapeGraphParams)
@@ -103,12 +117,18 @@ class ReconstructionParams:
             raise ValueError("curve_smoothing and grasp_arc_length must not be negative")
 
     def replace(self, **changes: object) -> ReconstructionParams:
-        """A copy with ``changes`` applied; names of PairingParams, SelectionCosts and
-        ShapeGraphParams fields go to the nested parameters. Unknown names raise TypeError."""
-        nested = {"pairing": PairingParams, "shape": ShapeGraphParams, "disparity": DisparitySmoothing}
+        """A copy with ``changes`` applied; names of the fields of PairingParams, SelectionCosts,
+        ShapeGraphParams, DisparitySmoothing and PhotometricParams go to the nested parameters.
+        Unknown names raise TypeError."""
+        nested = {
+            "pairing": PairingParams,
+            "shape": ShapeGraphParams,
+            "disparity": DisparitySmoothing,
+            "photometric": PhotometricParams,
+        }
         own_names = {f.name for f in fields(self)}
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        grouped: dict[str, dict[str, object]] = {"pairing": {}, "shape": {}, "selection": {}, "disparity": {}}
+        grouped: dict[str, dict[str, object]] = {key: {} for key in (*nested, "selection")}
         for name, value in changes.items():
             if name in own_names:
                 values[name] = value
@@ -120,6 +140,8 @@ class ReconstructionParams:
                 grouped["shape"][name] = value
             elif name in {f.name for f in fields(DisparitySmoothing)}:
                 grouped["disparity"][name] = value
+            elif name in {f.name for f in fields(PhotometricParams)}:
+                grouped["photometric"][name] = value
             else:
                 raise TypeError(f"unknown reconstruction parameter {name!r}")
         if grouped["selection"]:
@@ -142,6 +164,7 @@ class Reconstruction:
     at the end). ``length``: its arc length (m). ``grasp_position`` (3,) and
     ``grasp_quaternion`` (4,) x y z w: the grasp pose (``suture_common.grasp``).
     ``left_uv`` (K, 2): the left pixels of ``points``; ``disparity`` (K,) px.
+    ``image_matches``: left samples whose disparity the images refined (0 without images).
     ``shape``: Algorithm 1's result (``tau_l`` used, path vertex indices into
     ``vertices`` (V, 3), the resampled input). ``rejected``: counts of left
     samples without a vertex, by reason. ``timings_ms``: per step.
@@ -159,6 +182,7 @@ class Reconstruction:
     curve: ArcLengthCurve
     rejected: dict[str, int]
     timings_ms: dict[str, float]
+    image_matches: int = 0
 
     @property
     def tau_l(self) -> float:
@@ -171,10 +195,13 @@ def reconstruct(
     right_sequence: np.ndarray,
     camera: StereoCamera,
     params: ReconstructionParams | None = None,
+    images: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Reconstruction:
     """Reconstruct the thread from its ordered left (N, 2) and right (M, 2) sequences (pixels u, v).
 
-    See the module docstring for the steps and errors.
+    ``images``: optionally the rectified (left, right) images of the same stereo pair, (H, W) or
+    (H, W, C) uint8 of the camera's size; with them the disparity is refined photometrically
+    (step 2 of the module docstring). See the module docstring for the steps and errors.
     """
     params = params or ReconstructionParams()
     if not isinstance(camera, StereoCamera):
@@ -184,6 +211,8 @@ def reconstruct(
     right_raw = as_sequence(right_sequence, "right", params.min_points)
     check_plausible(left_raw, camera.width, camera.height, "left")
     check_plausible(right_raw, camera.width, camera.height, "right")
+    if images is not None:
+        _check_images(images, camera)
 
     left = resample(smooth_sequence(left_raw, params.smoothing_window), 1.0, params.max_jump_px)
     right = resample(smooth_sequence(right_raw, params.smoothing_window), 1.0, params.max_jump_px)
@@ -207,6 +236,12 @@ def reconstruct(
     )
     rejected["outlier"] = int((~disparity.inlier).sum())
     t_pairing = time.perf_counter()
+    image_matches = 0
+    if images is not None:
+        disparity, image_matches = refine_disparity(
+            images, left.points, left.observed, disparity, pairs, params.disparity, params.photometric
+        )
+    t_photometric = time.perf_counter()
 
     # --- triangulation
     with np.errstate(invalid="ignore"):
@@ -247,7 +282,8 @@ def reconstruct(
 
     timings = {
         "pairing": 1000 * (t_pairing - clock),
-        "triangulation": 1000 * (t_triangulation - t_pairing),
+        "photometric": 1000 * (t_photometric - t_pairing),
+        "triangulation": 1000 * (t_triangulation - t_photometric),
         "optimisation": 1000 * (t_shape - t_triangulation),
         "curve_and_grasp": 1000 * (t_grasp - t_shape),
     }
@@ -265,7 +301,24 @@ def reconstruct(
         curve=curve,
         rejected=rejected,
         timings_ms=timings,
+        image_matches=image_matches,
     )
+
+
+def _check_images(images: tuple[np.ndarray, np.ndarray], camera: StereoCamera) -> None:
+    try:
+        left, right = images
+    except (TypeError, ValueError):
+        raise ImagePairError("images must be a (left, right) pair of arrays") from None
+    for name, image in (("left", left), ("right", right)):
+        shape = np.shape(image)
+        if len(shape) not in (2, 3) or shape[:2] != (camera.height, camera.width):
+            raise ImagePairError(
+                f"{name} image has shape {shape}, but camera_info says {camera.width}x{camera.height} "
+                "(expected (H, W) or (H, W, C) of the rectified view)"
+            )
+    if np.shape(left) != np.shape(right):
+        raise ImagePairError(f"left image is {np.shape(left)} but right image is {np.shape(right)}")
 
 
 def _resample_runs(points: np.ndarray, index: np.ndarray, step: float) -> np.ndarray:

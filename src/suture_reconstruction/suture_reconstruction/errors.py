@@ -28,3 +28,8 @@ class NoStereoOverlapError(ReconstructionError):
 
 class ThreadTooShortError(ReconstructionError):
     """The reconstructed thread is shorter than the reserved grasp arc length."""
+
+
+class ImagePairError(ReconstructionError):
+    """The stereo images given for the photometric refinement cannot be used (sizes differ from each
+    other or from the camera, not (H, W) or (H, W, C))."""

@@ -4,7 +4,18 @@ Subscribes ``/suture/left/sequence`` and ``/suture/right/sequence``
 (geometry_msgs/PolygonStamped, reliable) and ``/stereo/{left,right}/camera_info``
 (sensor_msgs/CameraInfo, sensor-data QoS, which also hears reliable publishers).
 Sequences are paired by exact ``header.stamp`` (:class:`StampPairBuffer`) and
-reconstructed with the latest camera_info pair. Publishes, with the stamp of the
+reconstructed with the latest camera_info pair.
+
+With ``use_images`` (default true) it also subscribes the rectified images
+``/stereo/{left,right}/image_rect`` (sensor-data QoS; rgb8, bgr8 or mono8, the
+same in both views), keeps the newest ``image_buffer_size`` stereo pairs of
+them, and gives the pair with the sequences' stamp to :func:`reconstruct`,
+which refines the disparity photometrically
+(:mod:`suture_reconstruction.photometric`; the depth of a 5 mm-baseline
+endoscope needs the tenth of a pixel that the masks cannot give). The images
+of a frame are published before its sequences can exist, so they are normally
+waiting; if they are not (lost on a best-effort link, or malformed), the frame
+is reconstructed from the sequences alone, with a throttled warning. Publishes, with the stamp of the
 stereo pair and frame ``frame_id`` (``left_camera_optical_frame``), reliable:
 
 * ``/suture/points`` (sensor_msgs/PointCloud2: fields x y z float32, the dense
@@ -24,6 +35,7 @@ per reason and ``log_throttle`` seconds, and the node serves the next one.
 from __future__ import annotations
 
 import sys
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -31,13 +43,14 @@ from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.messages import (
     MessageConversionError,
+    image_to_array,
     path_message,
     polygon_to_array,
     pose_message,
@@ -47,6 +60,7 @@ from suture_common.ros import (
     SENSOR_DATA_QOS,
     ThrottledWarnings,
     run_node,
+    sensor_data_qos,
     serialized,
     stamp_or_drop,
     to_rclpy,
@@ -56,17 +70,20 @@ from suture_common.topics import (
     GRASP_POSE,
     LEFT_CAMERA_INFO,
     LEFT_FRAME,
+    LEFT_IMAGE,
     LEFT_SEQUENCE,
     MARKERS,
     PATH,
     POINTS,
     RIGHT_CAMERA_INFO,
+    RIGHT_IMAGE,
     RIGHT_SEQUENCE,
 )
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import ReconstructionError
 
 NODE_NAME = "reconstruction_node"
+IMAGE_ENCODINGS = ("rgb8", "bgr8", "mono8")
 
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "grasp_arc_length": (0.05, "arc length (m) from the cut tip to the grasp point"),
@@ -83,6 +100,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "path_step": (0.0005, "spacing (m) of the published path"),
     "frame_id": (LEFT_FRAME, "frame of the outputs (the left camera optical frame)"),
     "buffer_size": (30, "unmatched stamps kept per side while waiting for the other sequence"),
+    "use_images": (True, "refine the disparity with the rectified images (subscribes /stereo/*/image_rect)"),
+    "image_buffer_size": (10, "stereo image pairs kept while their sequences are on the way"),
     "log_throttle": (5.0, "seconds between two warnings for the same reason"),
 }
 """Declared parameters: name -> (default, description)."""
@@ -116,6 +135,11 @@ class ReconstructionNode(Node):
         self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(
             int(self.get_parameter("buffer_size").value)
         )
+        self.use_images = bool(self.get_parameter("use_images").value)
+        image_capacity = int(self.get_parameter("image_buffer_size").value)
+        self._image_pairer: StampPairBuffer[Image] = StampPairBuffer(image_capacity)  # ValueError below 1
+        self._images: OrderedDict[int, tuple[Image, Image]] = OrderedDict()
+        self._image_capacity = image_capacity
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
         self._warnings = ThrottledWarnings(self.get_logger(), float(self.get_parameter("log_throttle").value))
@@ -123,6 +147,13 @@ class ReconstructionNode(Node):
         """Stereo pairs reconstructed and published."""
         self.dropped: dict[str, int] = self._warnings.counts
         """Stereo pairs dropped, by reason."""
+        self.refined = 0
+        """Stereo pairs whose disparity the images refined."""
+        self._image_warnings = ThrottledWarnings(
+            self.get_logger(), float(self.get_parameter("log_throttle").value)
+        )
+        self.without_images: dict[str, int] = self._image_warnings.counts
+        """Stereo pairs reconstructed from the sequences alone although ``use_images`` is set, by reason."""
 
         self._points = self.create_publisher(PointCloud2, POINTS, RELIABLE_QOS)
         self._path = self.create_publisher(Path, PATH, RELIABLE_QOS)
@@ -143,7 +174,12 @@ class ReconstructionNode(Node):
             lambda m: self._camera_info.__setitem__("right", m),
             SENSOR_DATA_QOS,
         )
-        self.get_logger().info(f"reconstructing {LEFT_SEQUENCE} and {RIGHT_SEQUENCE} in 3D")
+        if self.use_images:
+            images_qos = sensor_data_qos(5)
+            self.create_subscription(Image, LEFT_IMAGE, lambda m: self._on_image("left", m), images_qos)
+            self.create_subscription(Image, RIGHT_IMAGE, lambda m: self._on_image("right", m), images_qos)
+        refined = f", disparity refined with {LEFT_IMAGE} and {RIGHT_IMAGE}" if self.use_images else ""
+        self.get_logger().info(f"reconstructing {LEFT_SEQUENCE} and {RIGHT_SEQUENCE} in 3D{refined}")
 
     # ------------------------------------------------------------------ callbacks
 
@@ -160,13 +196,25 @@ class ReconstructionNode(Node):
         if pair is not None:
             self.process(stamp, *pair)
 
+    def _on_image(self, side: str, message: Image) -> None:
+        stamp = stamp_or_drop(message, self._drop, f"{side} image")
+        if stamp is None:
+            return
+        pair = self._image_pairer.add(side, stamp, message)
+        if pair is not None:
+            self._images.pop(stamp, None)
+            self._images[stamp] = pair
+            while len(self._images) > self._image_capacity:
+                self._images.popitem(last=False)
+
     def process(self, stamp_ns: int, left: np.ndarray, right: np.ndarray) -> Reconstruction | None:
         """Reconstruct one stereo pair and publish it; returns None (and warns) when it is dropped."""
         camera = self._stereo_camera()
         if camera is None:
             return None
+        images = self._images_of(stamp_ns, camera) if self.use_images else None
         try:
-            result = reconstruct(left, right, camera, self.params)
+            result = reconstruct(left, right, camera, self.params, images)
         except ReconstructionError as exc:
             self._drop(type(exc).__name__, f"dropped stereo pair at {stamp_ns} ns: {exc}")
             return None
@@ -175,7 +223,37 @@ class ReconstructionNode(Node):
             return None
         self._publish(stamp_ns, result)
         self.frames += 1
+        self.refined += result.image_matches > 0
         return result
+
+    def _images_of(self, stamp_ns: int, camera: StereoCamera) -> tuple[np.ndarray, np.ndarray] | None:
+        """The stereo images of ``stamp_ns`` as arrays, or None (with a warning) if there are none."""
+        pair = self._images.pop(stamp_ns, None)
+        if pair is None:
+            self._image_warnings.warn(
+                "no_images",
+                f"no stereo images of stamp {stamp_ns} ns received before its sequences: reconstructed "
+                "from the sequences alone (set use_images false if the images are not published)",
+            )
+            return None
+        try:
+            left, right = (image_to_array(message, expect=IMAGE_ENCODINGS) for message in pair)
+        except MessageConversionError as exc:
+            self._image_warnings.warn(
+                "bad_image",
+                f"stereo images at {stamp_ns} ns unusable ({exc}): reconstructed from the sequences",
+            )
+            return None
+        size = (camera.height, camera.width)
+        if pair[0].encoding != pair[1].encoding or left.shape[:2] != size or right.shape[:2] != size:
+            self._image_warnings.warn(
+                "bad_image",
+                f"stereo images at {stamp_ns} ns do not fit each other or camera_info ({pair[0].encoding} "
+                f"{left.shape}, {pair[1].encoding} {right.shape}, camera {camera.width}x{camera.height}): "
+                "reconstructed from the sequences",
+            )
+            return None
+        return left, right
 
     def _stereo_camera(self) -> StereoCamera | None:
         left, right = self._camera_info.get("left"), self._camera_info.get("right")

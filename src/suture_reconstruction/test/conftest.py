@@ -13,7 +13,7 @@ from suture_common import topics
 from suture_common.bag_io import read_messages
 from suture_common.camera import StereoCamera
 from suture_common.grasp import point_at_arc_length
-from suture_common.messages import path_to_array, polygon_to_array, pose_to_arrays
+from suture_common.messages import image_to_array, path_to_array, polygon_to_array, pose_to_arrays
 
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
 
@@ -111,7 +111,8 @@ def make_scene() -> Callable[..., Scene]:
 
 @dataclass
 class SampleFrame:
-    """One frame of bags/sample: ground-truth sequences, camera_info messages and the true thread."""
+    """One frame of bags/sample: ground-truth sequences, camera_info messages, the true thread and
+    the rectified (H, W, 3) uint8 images."""
 
     stamp_ns: int
     topology: str
@@ -121,6 +122,8 @@ class SampleFrame:
     right_info: object
     path: np.ndarray
     grasp: np.ndarray
+    left_image: np.ndarray
+    right_image: np.ndarray
 
 
 @pytest.fixture(scope="session")
@@ -133,6 +136,8 @@ def sample_frames() -> list[SampleFrame]:
         topics.GT_TOPOLOGY,
         topics.LEFT_CAMERA_INFO,
         topics.RIGHT_CAMERA_INFO,
+        topics.LEFT_IMAGE,
+        topics.RIGHT_IMAGE,
     ]
     by_stamp: dict[int, dict[str, object]] = {}
     for item in read_messages(SAMPLE_BAG, wanted):
@@ -149,6 +154,8 @@ def sample_frames() -> list[SampleFrame]:
                 m[topics.RIGHT_CAMERA_INFO],
                 path_to_array(m[topics.GT_PATH]),
                 pose_to_arrays(m[topics.GT_GRASP_POSE])[0],
+                image_to_array(m[topics.LEFT_IMAGE]),
+                image_to_array(m[topics.RIGHT_IMAGE]),
             )
         )
     return frames
