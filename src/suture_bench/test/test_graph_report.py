@@ -23,7 +23,7 @@ def _record_outputs(path: Path, skip: set[int]) -> list[int]:
     """Write what the graph would publish from the true masks (frames in ``skip``: nothing)."""
     stamps = []
     with BagWriter(path) as bag:
-        for index, frame in enumerate(read_frames(SAMPLE, images=False)):
+        for index, frame in enumerate(read_frames(SAMPLE, images=True)):
             stamps.append(frame.stamp_ns)
             if index in skip:
                 continue
@@ -40,7 +40,8 @@ def _record_outputs(path: Path, skip: set[int]) -> list[int]:
             bag.write(
                 topics.RIGHT_SEQUENCE, messages.polygon_message(ordering.right, stamp, FRAME), clock + 10**6
             )
-            result = reconstruct(ordering.left, ordering.right, frame.camera)
+            images = (frame.left_image, frame.right_image)  # as reconstruction_node gets them
+            result = reconstruct(ordering.left, ordering.right, frame.camera, images=images)
             bag.write(topics.PATH, messages.path_message(result.path, stamp, FRAME), clock + 2 * 10**6)
             pose = messages.pose_message(result.grasp_position, np.array([0, 0, 0, 1.0]), stamp, FRAME)
             bag.write(topics.GRASP_POSE, pose, clock + 3 * 10**6)
