@@ -77,7 +77,10 @@ class PhotometricParams:
     ``fine_step_px`` (the sub-pixel pass), ``sample_step`` (every n-th left sample is
     matched; the regularisation smooths over at least 12). Fusion: ``min_confidence``,
     ``max_confidence``, ``mask_pair_weight``, ``gap_guard_px``, ``max_change_px`` (see the
-    module docstring) and ``noise_floor_px``, the noise floor of the fused pairs.
+    module docstring) and ``noise_floor_px``, the noise floor of the fused pairs: on a faint
+    thread the matches' errors are correlated over tens of px (the background's texture pulls
+    them), so the fit must not follow them closely; 0.3 px against 0.05 took 2,250 fresh
+    frames from 96.1 to 96.6 % of grasps within 5 mm, the median error from 0.37 to 0.44 mm.
     """
 
     blur_sigma_px: float = 1.0
@@ -91,7 +94,7 @@ class PhotometricParams:
     mask_pair_weight: float = 0.04
     gap_guard_px: int = 6
     max_change_px: float = 1.5
-    noise_floor_px: float = 0.05
+    noise_floor_px: float = 0.3
 
     def __post_init__(self) -> None:
         if self.radius_px < 1 or self.search_px < 1 or self.sample_step < 1:
