@@ -50,12 +50,7 @@ import numpy as np
 
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
-from suture_reconstruction.errors import (
-    ImagePairError,
-    NoStereoOverlapError,
-    ReconstructionError,
-    TooFewPointsError,
-)
+from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
 from suture_reconstruction.pairing import (
     DisparitySmoothing,
     PairingParams,
@@ -64,7 +59,7 @@ from suture_reconstruction.pairing import (
     pair_sequences,
     regularise_disparity,
 )
-from suture_reconstruction.photometric import PhotometricParams, refine_disparity
+from suture_reconstruction.photometric import PhotometricParams, check_image_pair, refine_disparity
 from suture_reconstruction.sequences import as_sequence, check_plausible, resample, smooth_sequence
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 
@@ -212,7 +207,7 @@ def reconstruct(
     check_plausible(left_raw, camera.width, camera.height, "left")
     check_plausible(right_raw, camera.width, camera.height, "right")
     if images is not None:
-        _check_images(images, camera)
+        images = check_image_pair(images, camera.width, camera.height)
 
     left = resample(smooth_sequence(left_raw, params.smoothing_window), 1.0, params.max_jump_px)
     right = resample(smooth_sequence(right_raw, params.smoothing_window), 1.0, params.max_jump_px)
@@ -303,22 +298,6 @@ def reconstruct(
         timings_ms=timings,
         image_matches=image_matches,
     )
-
-
-def _check_images(images: tuple[np.ndarray, np.ndarray], camera: StereoCamera) -> None:
-    try:
-        left, right = images
-    except (TypeError, ValueError):
-        raise ImagePairError("images must be a (left, right) pair of arrays") from None
-    for name, image in (("left", left), ("right", right)):
-        shape = np.shape(image)
-        if len(shape) not in (2, 3) or shape[:2] != (camera.height, camera.width):
-            raise ImagePairError(
-                f"{name} image has shape {shape}, but camera_info says {camera.width}x{camera.height} "
-                "(expected (H, W) or (H, W, C) of the rectified view)"
-            )
-    if np.shape(left) != np.shape(right):
-        raise ImagePairError(f"left image is {np.shape(left)} but right image is {np.shape(right)}")
 
 
 def _resample_runs(points: np.ndarray, index: np.ndarray, step: float) -> np.ndarray:

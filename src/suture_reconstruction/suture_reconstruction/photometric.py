@@ -23,10 +23,9 @@ same row (a rectified pair), near the disparity the pairs gave:
   enters.
 * The cost of a shift is the zero-mean sum of squared differences over the
   window and the colour channels (window means removed, so a brightness
-  difference between the cameras does not bias it), at whole-pixel shifts
-  within ``search_px`` of the given disparity, then at ``fine_step_px`` steps
-  around the best; a parabola through the best fine shift and its neighbours
-  gives the sub-pixel minimum.
+  difference between the cameras does not bias it), at ``fine_step_px`` steps
+  within ``search_px`` of the given disparity; a parabola through the best shift
+  and its neighbours gives the sub-pixel minimum.
 * Its confidence is the parabola's curvature over the residual cost at the
   minimum (plus one grey level squared of noise): the inverse of the
   estimate's variance up to a factor. Over 61,000 samples of 160 frames of
@@ -73,9 +72,8 @@ class PhotometricParams:
 
     Matching: ``blur_sigma_px`` (Gaussian blur of both images), ``radius_px`` (window
     half-length along the thread), ``half_width_px`` (half-width across it),
-    ``search_px`` (whole-pixel shifts either side of the given disparity),
-    ``fine_step_px`` (the sub-pixel pass), ``sample_step`` (every n-th left sample is
-    matched; the regularisation smooths over at least 12). Fusion: ``min_confidence``,
+    ``search_px`` (the shifts searched either side of the given disparity),
+    ``fine_step_px`` (their spacing). Fusion: ``min_confidence``,
     ``max_confidence``, ``mask_pair_weight``, ``gap_guard_px``, ``max_change_px`` (see the
     module docstring) and ``noise_floor_px``, the noise floor of the fused pairs: on a faint
     thread the matches' errors are correlated over tens of px (the background's texture pulls
@@ -88,7 +86,6 @@ class PhotometricParams:
     half_width_px: float = 2.0
     search_px: int = 2
     fine_step_px: float = 0.25
-    sample_step: int = 1
     min_confidence: float = 0.2
     max_confidence: float = 4.0
     mask_pair_weight: float = 0.04
@@ -97,10 +94,9 @@ class PhotometricParams:
     noise_floor_px: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.radius_px < 1 or self.search_px < 1 or self.sample_step < 1:
+        if self.radius_px < 1 or self.search_px < 1:
             raise ValueError(
-                "radius_px, search_px and sample_step must be at least 1, got "
-                f"{self.radius_px}, {self.search_px}, {self.sample_step}"
+                f"radius_px and search_px must be at least 1, got {self.radius_px}, {self.search_px}"
             )
         if not 0 < self.fine_step_px <= 0.5:
             raise ValueError(f"fine_step_px must be in (0, 0.5], got {self.fine_step_px}")
@@ -124,18 +120,41 @@ class Matches:
     confidence: np.ndarray
 
 
+def check_image_pair(
+    images: tuple[np.ndarray, np.ndarray], width: int | None = None, height: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (left, right) ``images`` as arrays, if they can be matched: each (H, W) or (H, W, C) with
+    H, W >= 2, of the camera's ``width`` x ``height`` when given, and of the same shape.
+
+    Raises :class:`ImagePairError` naming what is wrong.
+    """
+    try:
+        left, right = (np.asarray(image) for image in images)
+    except (TypeError, ValueError):
+        raise ImagePairError("images must be a (left, right) pair of arrays") from None
+    for name, image in (("left", left), ("right", right)):
+        if image.ndim not in (2, 3) or min(image.shape[:2]) < 2:
+            raise ImagePairError(
+                f"{name} image must be (H, W) or (H, W, C) with H, W >= 2, got {image.shape}"
+            )
+        if width is not None and image.shape[:2] != (height, width):
+            raise ImagePairError(
+                f"{name} image has shape {image.shape}, but camera_info says {width}x{height} "
+                "(expected (H, W) or (H, W, C) of the rectified view)"
+            )
+    if left.shape != right.shape:
+        raise ImagePairError(f"left image is {left.shape} but right image is {right.shape}")
+    return left, right
+
+
 def prepare_images(
     left_image: np.ndarray, right_image: np.ndarray, blur_sigma_px: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Both views blurred, as (H, W, C) arrays of their dtype, for :func:`match_along_rows`.
 
-    Raises :class:`ImagePairError` when the shapes differ or are not (H, W) / (H, W, C).
+    Raises :class:`ImagePairError` as :func:`check_image_pair`.
     """
-    left, right = np.asarray(left_image), np.asarray(right_image)
-    if left.shape != right.shape:
-        raise ImagePairError(f"left image is {left.shape} but right image is {right.shape}")
-    if left.ndim not in (2, 3) or left.size == 0 or min(left.shape[:2]) < 2:
-        raise ImagePairError(f"images must be (H, W) or (H, W, C) with H, W >= 2, got {left.shape}")
+    left, right = check_image_pair((left_image, right_image))
     prepared = []
     for image in (left, right):
         if blur_sigma_px > 0:
@@ -272,7 +291,6 @@ def refine_disparity(
     candidate = observed & initial.supported
     if params.gap_guard_px > 0 and not observed.all():
         candidate &= ~binary_dilation(~observed, iterations=params.gap_guard_px)
-    candidate[np.arange(len(candidate)) % params.sample_step != 0] = False
     index = np.flatnonzero(candidate)
     tangents = np.gradient(points, axis=0) if len(points) > 1 else np.ones_like(points)
     matches = match_along_rows(left, right, points[index], tangents[index], initial.value[index], params)

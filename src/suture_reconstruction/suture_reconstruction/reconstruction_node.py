@@ -80,7 +80,8 @@ from suture_common.topics import (
     RIGHT_SEQUENCE,
 )
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
-from suture_reconstruction.errors import ReconstructionError
+from suture_reconstruction.errors import ImagePairError, ReconstructionError
+from suture_reconstruction.photometric import check_image_pair
 
 NODE_NAME = "reconstruction_node"
 IMAGE_ENCODINGS = ("rgb8", "bgr8", "mono8")
@@ -139,7 +140,6 @@ class ReconstructionNode(Node):
         image_capacity = int(self.get_parameter("image_buffer_size").value)
         self._image_pairer: StampPairBuffer[Image] = StampPairBuffer(image_capacity)  # ValueError below 1
         self._images: OrderedDict[int, tuple[Image, Image]] = OrderedDict()
-        self._image_capacity = image_capacity
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
         self._warnings = ThrottledWarnings(self.get_logger(), float(self.get_parameter("log_throttle").value))
@@ -204,7 +204,7 @@ class ReconstructionNode(Node):
         if pair is not None:
             self._images.pop(stamp, None)
             self._images[stamp] = pair
-            while len(self._images) > self._image_capacity:
+            while len(self._images) > self._image_pairer.capacity:
                 self._images.popitem(last=False)
 
     def process(self, stamp_ns: int, left: np.ndarray, right: np.ndarray) -> Reconstruction | None:
@@ -237,23 +237,16 @@ class ReconstructionNode(Node):
             )
             return None
         try:
-            left, right = (image_to_array(message, expect=IMAGE_ENCODINGS) for message in pair)
-        except MessageConversionError as exc:
+            if pair[0].encoding != pair[1].encoding:
+                raise ImagePairError(f"encodings differ: {pair[0].encoding}, {pair[1].encoding}")
+            arrays = tuple(image_to_array(message, expect=IMAGE_ENCODINGS) for message in pair)
+            return check_image_pair(arrays, camera.width, camera.height)
+        except (MessageConversionError, ImagePairError) as exc:
             self._image_warnings.warn(
                 "bad_image",
                 f"stereo images at {stamp_ns} ns unusable ({exc}): reconstructed from the sequences",
             )
             return None
-        size = (camera.height, camera.width)
-        if pair[0].encoding != pair[1].encoding or left.shape[:2] != size or right.shape[:2] != size:
-            self._image_warnings.warn(
-                "bad_image",
-                f"stereo images at {stamp_ns} ns do not fit each other or camera_info ({pair[0].encoding} "
-                f"{left.shape}, {pair[1].encoding} {right.shape}, camera {camera.width}x{camera.height}): "
-                "reconstructed from the sequences",
-            )
-            return None
-        return left, right
 
     def _stereo_camera(self) -> StereoCamera | None:
         left, right = self._camera_info.get("left"), self._camera_info.get("right")
