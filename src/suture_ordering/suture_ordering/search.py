@@ -80,9 +80,19 @@ Junctions (crossings, the thread's own loops, touching threads).
     than 5° elsewhere: on a segmenter's mask the step into a junction is often pulled
     towards the other strand.
 
+Leaving a loop across the first pass.
+    Back round a loop at its own crossing, the way out may share the first
+    pass's track for a few pixels (strands meeting at a shallow angle): every
+    nearer node ahead is detected and the chord to the first free one cuts the
+    curve outside the zone, like a gap that the bridge checks refuse. Before the
+    search ends, a free node ahead within ``bridge_turn_max`` is taken when the
+    smooth step to it (Hermite, bending less than ``bridge_bend_max``) stays in
+    the zone and crosses the traversed path (:meth:`Searcher._across_own_path`).
+
 Termination.
     The search ends when no admissible node (not detected, O < τ_O, δ < τ_V)
-    exists up to τ_O, or at a junction without a smooth continuation; the last,
+    exists up to τ_O, nor a step out of a loop across the first pass, or at a
+    junction without a smooth continuation; the last,
     shorter piece to the free end is then appended, and the sequence ends half a
     thread width before the end of the mask (where the centreline of a rounded
     end ends).
@@ -756,6 +766,51 @@ class Searcher:
             best = np.minimum(best, self._cost(branch.rows, more).min(axis=1))
         return _Candidates.concatenate(found) if found else None
 
+    def _across_own_path(self, branch: _Branch) -> _Candidates | None:
+        """The step out of a loop across the thread's own earlier pass, where the search found
+        nothing: the candidate, or None (the thread ends here).
+
+        Coming round a loop back to its crossing, the nearer nodes ahead lie on the path traversed
+        before (detected), and where the strands meet at a shallow angle the way out shares the
+        first pass's track for a while: the first free node of the exit lies beyond the RoI's
+        nearest circles, and the chord to it, cutting the curve, leaves the zone by a few pixels, so
+        that it is taken for a gap and refused. Here a free node ahead (turning less than
+        ``bridge_turn_max``) is taken when the smooth step to it (a Hermite curve along both
+        tangents, bending less than ``bridge_bend_max``) runs within the zone (at most 10 %
+        outside) and over the traversed path (crossing it), nearest first.
+        """
+        heading = self._predicted(branch)
+        tangent = self._tangent_at_vertex(branch)
+        if heading is None or tangent is None:
+            return None
+        vertex = branch.vertices[-1]
+        consumed_flat = branch.consumed.reshape(-1)
+        unit = tangent / float(np.hypot(*tangent))
+        for r in range(self.scaled.step_radius + 1, self.scaled.roi_radius + 1):
+            nodes = self._nodes(vertex, r, None)
+            if nodes is None:
+                continue
+            delta = self._turn(nodes.position - vertex, heading)
+            free = consumed_flat[self._flat(nodes.position)] == 0
+            for j in np.flatnonzero(free & (delta < self.params.bridge_turn_max)):
+                point = nodes.position[j]
+                onward = self._tangent(point, point - vertex, consumed_flat)
+                if onward is None or _bend(vertex, unit, point, onward) >= self.params.bridge_bend_max:
+                    continue
+                curve = self._flat(_hermite(vertex, point, unit * r, onward * r))
+                if (self.zone_flat[curve] == 0).mean() > 0.1 or (consumed_flat[curve] != 0).sum() < 2:
+                    continue
+                return _Candidates(
+                    point[None, :],
+                    np.array([float(r)]),
+                    np.zeros(1, dtype=np.int64),
+                    delta[j : j + 1],
+                    nodes.width[j : j + 1],
+                    [onward],
+                    np.array([False]),
+                )
+        return None
+
     def _farther_radii(self, branch: _Branch, vertex: np.ndarray, heading: np.ndarray | None) -> list[int]:
         """Radii in (r_s, max_reach] whose circles meet an undetected mask pixel ahead, ascending."""
         reach = self.scaled.max_reach
@@ -927,6 +982,8 @@ class Searcher:
                     branch.status = "max_steps"
                     break
                 found = self._candidates(branch)
+                if found is None:
+                    found = self._across_own_path(branch)
                 if found is None:
                     self._tail(branch)
                     branch.status = self._end_status(branch.vertices[-1])

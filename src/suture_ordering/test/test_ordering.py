@@ -431,3 +431,16 @@ def test_a_predicted_mask_is_followed_straight_across_a_crossing():
     mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
     result = order_sequence(mask, stored["hint"])
     check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
+
+
+def test_a_predicted_mask_is_followed_out_of_a_loop_across_its_own_first_pass():
+    """A segmenter's mask of a simulated frame (fresh set seed 7003, frame 222): the thread comes
+    back round its loop to a crossing where the way out leaves along the first pass's track, so
+    the nearer nodes ahead were all detected and the chord to the first free one cut the curve
+    outside the zone; the sequence ended at the crossing (201 of the thread's 274 px) and the
+    frame had no grasp point. The step across the thread's own path takes it to the end."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_loop_exit.npz")
+    mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
+    result = order_sequence(mask, stored["hint"])
+    check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
+    assert result.status == "free_end"
