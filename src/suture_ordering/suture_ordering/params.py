@@ -76,6 +76,10 @@ class OrderingParams:
     junction_bend_max: float = math.radians(30.0)
     #: At a junction, a branch must bend this much less than the next to be chosen from afar (rad).
     junction_tie: float = math.radians(8.0)
+    #: A step whose straightest near node turns by more than this is examined as a junction too:
+    #: where a strand leaves the thread at a shallow angle (a small loop entered tangentially)
+    #: the two run merged past the nearest circle, and the near node may be the other strand (rad).
+    sharp_step_turn: float = math.radians(32.0)
     #: At a junction with four arms, the strands must meet at least at this angle to be taken as
     #: crossing (the thread then goes straight across); below it they are taken to touch (rad).
     min_crossing_angle: float = math.radians(8.0)
@@ -118,6 +122,7 @@ class OrderingParams:
             "min_crossing_angle",
             "junction_bend_max",
             "junction_tie",
+            "sharp_step_turn",
             "max_predicted_turn",
             "wide_arc_factor",
             "tip_radius_px",

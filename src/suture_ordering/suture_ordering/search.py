@@ -68,7 +68,10 @@ Turning angle δ.
 
 Junctions (crossings, the thread's own loops, touching threads).
     When the nodes on the first circle show several branches, or a cross-section
-    wider than a thread, the search decides across the whole junction instead of
+    wider than a thread, or every one of them turns by more than
+    ``sharp_step_turn`` (a small loop entered tangentially runs merged with the
+    way out past that circle, and its one node there is the way out's), the
+    search decides across the whole junction instead of
     on the biased near nodes, with the arms on the circle of radius Υ (see
     :meth:`Searcher._junction_step`): a loop the thread forms here is entered
     first (two arms connected outside the junction), a crossing is crossed
@@ -429,6 +432,13 @@ class Searcher:
             return True
         return len(nodes.width) > 1 and float(np.ptp(nodes.position, axis=0).max()) > max(2.0, width)
 
+    def _turns_sharply_or_branches(self, nodes: _Candidates, width: float | None) -> bool:
+        """Whether the step is decided across the whole junction (:meth:`_junction_step`): a
+        junction on the nearest circle (:meth:`_at_junction`), or every near node turning by more
+        than ``sharp_step_turn`` (a strand that leaves ours at a shallow angle may still run
+        merged with it there, and the near node be that strand's)."""
+        return self._at_junction(nodes, width) or float(nodes.delta.min()) > self.params.sharp_step_turn
+
     def _loop_entry(
         self,
         vertex: np.ndarray,
@@ -731,7 +741,7 @@ class Searcher:
         nodes = self._nodes(vertex, r_s, width)
         if nodes is not None:
             first = self._admissible(branch, nodes, heading, consumed_flat)
-            if first is not None and heading is not None and self._at_junction(first, width):
+            if first is not None and heading is not None and self._turns_sharply_or_branches(first, width):
                 junction = self._junction_step(branch, heading, consumed_flat)
                 if junction is _STOP:
                     return None

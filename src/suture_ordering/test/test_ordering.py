@@ -444,3 +444,15 @@ def test_a_predicted_mask_is_followed_out_of_a_loop_across_its_own_first_pass():
     result = order_sequence(mask, stored["hint"])
     check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
     assert result.status == "free_end"
+
+
+def test_a_predicted_mask_is_followed_round_a_small_loop_entered_tangentially():
+    """A segmenter's mask of a simulated frame (fresh set seed 7002, frame 102): the loop (about
+    20 px across) leaves the thread at a shallow angle and runs merged with the way out past the
+    nearest circle, whose one node ahead (a 36 degree turn) was the way out's; the sequence cut the
+    loop (390 of the thread's 513 px) and the grasp point was 20 mm off. A step turning that
+    sharply is decided across the junction, which enters the loop first."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_small_loop.npz")
+    mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
+    result = order_sequence(mask, stored["hint"])
+    check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
