@@ -453,6 +453,31 @@ def ordering_cases(rng: np.random.Generator, stamps: Stamps, sample: Sample) -> 
         cases.append(pair(ORDERING, f"right mask: {what}; left mask empty", masks, mono8(empty, s), bad(s)))
         s = stamps()
         cases.append(pair(ORDERING, f"both masks: {what}", masks, bad(s), bad(s)))
+    low = (topics.LEFT_MASK_LOW, topics.RIGHT_MASK_LOW)
+    for what, bad in image_defects(rng, w, h, "mono8"):  # bad low masks of good masks: left out
+        s = stamps()
+        sends = [hint(s), Send(low[0], bad(s)), Send(low[1], bad(s))]
+        sends += [Send(masks[0], mono8(truth_left, s), False), Send(masks[1], mono8(truth_right, s), False)]
+        cases.append(Case(ORDERING, f"both low masks: {what}; true masks", sends))
+    for what, left, right in [
+        ("low masks half size", np.zeros((h // 2, w // 2)), np.zeros((h // 2, w // 2))),
+        ("low masks of left and right sizes", np.zeros((h, w)), np.zeros((h, w - 1))),
+        ("uniform noise low masks", rng.integers(0, 256, (h, w)), rng.integers(0, 256, (h, w))),
+        ("full low masks", np.full((h, w), 255), np.full((h, w), 255)),
+    ]:
+        s = stamps()
+        sends = [hint(s), Send(low[0], mono8(left, s)), Send(low[1], mono8(right, s))]
+        sends += [Send(masks[0], mono8(truth_left, s), False), Send(masks[1], mono8(truth_right, s), False)]
+        cases.append(Case(ORDERING, f"{what}; true masks", sends))
+    for _ in range(10):
+        s = stamps()
+        cases.append(
+            pair(ORDERING, "low masks only, random", low, random_image(rng, s), random_image(rng, s))
+        )
+        s = stamps()
+        cases.append(
+            pair(ORDERING, "low masks only, true", low, mono8(truth_left, s), mono8(truth_right, s + 1))
+        )
     for encoding in ("rgb8", "bgr8"):
         s = stamps()
         rgb = np.repeat(truth_left[..., None], 3, axis=2).tobytes()

@@ -99,6 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="reconstruct from the sequences alone, without the photometric refinement by the images "
         "(reconstruction_node's use_images false)",
     )
+    parser.add_argument(
+        "--no-low-masks",
+        action="store_true",
+        help="order the masks alone, without the low masks (segmentation_node's low_threshold 0)",
+    )
     args = parser.parse_args(argv)
     try:
         summary = evaluate(
@@ -107,6 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             sequences=args.sequences,
             seg_weights=args.seg_weights,
             use_images=not args.no_images,
+            use_low_masks=not args.no_low_masks,
         )
         if args.json:
             with open(args.json, "w") as stream:

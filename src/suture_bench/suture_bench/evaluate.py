@@ -13,6 +13,9 @@ None, with the reason in ``notes``):
 * ``use_images`` (default True, as ``reconstruction_node``'s parameter of that name)
   gives the 3D stage the bag's rectified images, with which it refines the disparity
   photometrically; False reconstructs from the sequences alone.
+* ``use_low_masks`` (default True, as the node graph: segmentation_node publishes low masks and
+  ordering_node uses them) gives the ordering stage the predicted low masks too; False orders
+  the masks alone. True masks have none.
 
 Definitions (DESIGN.md): IoU, precision, recall and F1 pooled over the pixels of
 all frames; ordering success per ``suture_bench.ordering_metrics``; reconstruction
@@ -74,19 +77,23 @@ def evaluate(
     sequences: str = "predicted",
     seg_weights: str | None = None,
     use_images: bool = True,
+    use_low_masks: bool = True,
 ) -> dict:
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
     ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
     a shipped name, ``m_tosot`` or ``m_ost``); None is the stage's default (shipped M-ToSOT).
-    ``use_images``: refine the 3D stage's disparity with the images (module docstring).
+    ``use_images``: refine the 3D stage's disparity with the images; ``use_low_masks``: give the
+    ordering the low masks of the predicted masks (module docstring).
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
-    stages = _Stages(masks, sequences, seg_weights, use_images)
+    stages = _Stages(masks, sequences, seg_weights, use_images, use_low_masks)
     scoreboard = Scoreboard(ordering_ran=sequences == "predicted")
     if not use_images:
         scoreboard.tally.note("reconstruction: from the sequences alone (images not used)")
+    if masks == "predicted" and not use_low_masks:
+        scoreboard.tally.note("ordering: from the masks alone (low masks not used)")
     for bag in find_bags(paths):
         try:
             for frame in read_frames(bag, images=masks == "predicted" or use_images):
@@ -100,26 +107,34 @@ class _Stages:
     """The stage entry points the sources need; a stage that is not run is not imported
     (segmentation pulls in torch and loads a model).
 
-    ``segment(left_image, right_image) -> (left_mask, right_mask)`` is
-    :meth:`suture_segmentation.core.Segmenter.segment_pair`;
-    ``order(left_mask, right_mask, tip_hint, camera)`` is
+    ``segment(left_image, right_image) -> ((left_mask, right_mask), low_masks or None)`` is
+    :meth:`suture_segmentation.core.Segmenter.segment_pair_with_low`;
+    ``order(left_mask, right_mask, tip_hint, camera, low_masks=...)`` is
     :func:`suture_ordering.core.order_stereo` (``.left``/``.right`` (N, 2) sequences);
     ``reconstruct(left, right, camera, images=...)`` is
     :func:`suture_reconstruction.core.reconstruct` (``.path``, ``.grasp_position``);
     ``use_images``: whether it is given the frame's images.
     """
 
-    def __init__(self, masks: str, sequences: str, seg_weights: str | None, use_images: bool = True) -> None:
+    def __init__(
+        self,
+        masks: str,
+        sequences: str,
+        seg_weights: str | None,
+        use_images: bool = True,
+        use_low_masks: bool = True,
+    ) -> None:
         from suture_reconstruction.core import reconstruct
 
         self.masks, self.sequences, self.use_images = masks, sequences, use_images
-        self.segment: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
+        self.segment: Callable[..., Any] | None = None
         self.order: Callable[..., Any] | None = None
         self.reconstruct = reconstruct
         if masks == "predicted":
-            from suture_segmentation.core import Segmenter
+            from suture_segmentation.core import LOW_THRESHOLD, Segmenter
 
-            self.segment = Segmenter(seg_weights).segment_pair
+            low_threshold = LOW_THRESHOLD if use_low_masks else None  # segmentation_node's default
+            self.segment = Segmenter(seg_weights, low_threshold=low_threshold).segment_pair_with_low
         if sequences == "predicted":
             from suture_ordering.core import order_stereo
 
@@ -207,10 +222,10 @@ class Scoreboard:
 def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
     """Run the stages the sources ask for on one frame (the nodes' core functions)."""
     outputs = StageOutputs()
-    masks = (frame.true_left_mask, frame.true_right_mask)
+    masks, low_masks = (frame.true_left_mask, frame.true_right_mask), None
     if stages.segment is not None:
         start = time.perf_counter()
-        masks = stages.segment(frame.left_image, frame.right_image)
+        masks, low_masks = stages.segment(frame.left_image, frame.right_image)
         outputs.latency_ms["segmentation"] = _elapsed_ms(start)
         outputs.masks = masks
 
@@ -218,7 +233,7 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
     if stages.order is not None:
         start = time.perf_counter()
         try:
-            ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera)
+            ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera, low_masks=low_masks)
         except ValueError as error:
             outputs.latency_ms["ordering"] = _elapsed_ms(start)
             outputs.failure, outputs.detail = f"ordering: {type(error).__name__}", str(error)

@@ -11,6 +11,10 @@ TIP_HINT = "/suture/tip_hint"
 
 LEFT_MASK = "/suture/left/mask"
 RIGHT_MASK = "/suture/right/mask"
+#: The masks at segmentation_node's lower (hysteresis) threshold, for ordering_node (an addition
+#: to DESIGN.md's graph: see the README, "Low masks").
+LEFT_MASK_LOW = "/suture/left/mask_low"
+RIGHT_MASK_LOW = "/suture/right/mask_low"
 LEFT_SEQUENCE = "/suture/left/sequence"
 RIGHT_SEQUENCE = "/suture/right/sequence"
 POINTS = "/suture/points"
@@ -47,6 +51,8 @@ EXECUTOR_STATE = "/grasp_executor/state"
 PIPELINE_OUTPUT_TOPICS = (
     LEFT_MASK,
     RIGHT_MASK,
+    LEFT_MASK_LOW,
+    RIGHT_MASK_LOW,
     LEFT_SEQUENCE,
     RIGHT_SEQUENCE,
     POINTS,
@@ -66,6 +72,8 @@ TOPIC_TYPES: dict[str, str] = {
     TIP_HINT: "geometry_msgs/msg/PointStamped",
     LEFT_MASK: "sensor_msgs/msg/Image",
     RIGHT_MASK: "sensor_msgs/msg/Image",
+    LEFT_MASK_LOW: "sensor_msgs/msg/Image",
+    RIGHT_MASK_LOW: "sensor_msgs/msg/Image",
     LEFT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
     RIGHT_SEQUENCE: "geometry_msgs/msg/PolygonStamped",
     POINTS: "sensor_msgs/msg/PointCloud2",

@@ -13,6 +13,7 @@ cut tip (:mod:`suture_ordering.tip`), then the search of the paper's Section II.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
-from suture_ordering.errors import InvalidInputError
+from suture_ordering.errors import InvalidInputError, OrderingError
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
@@ -75,7 +76,8 @@ class StereoOrdering:
     interpolation in ``points``, status and diagnostics) of each view's own search.
     ``filled``: points of ``left`` and ``right`` found by following the other view, across a gap
     in this view's mask or round a loop this view's search cut across
-    (:mod:`suture_ordering.stereo_fill`); 0 where none was needed.
+    (:mod:`suture_ordering.stereo_fill`); 0 where none was needed. ``low_masks_used``: the
+    sequences are those of the low masks (:func:`order_stereo`).
     """
 
     left: np.ndarray
@@ -83,6 +85,7 @@ class StereoOrdering:
     left_result: OrderingResult
     right_result: OrderingResult
     filled: tuple[int, int] = (0, 0)
+    low_masks_used: bool = False
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,7 @@ def order_stereo(
     tip_hint: np.ndarray | None,
     camera: StereoCamera,
     params: OrderingParams | None = None,
+    low_masks: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> StereoOrdering:
     """Order the target thread in both views of a rectified stereo pair.
 
@@ -192,6 +196,13 @@ def order_stereo(
         The rectified pair; bounds the right tip's disparity to
         ``[camera.disparity(max_depth_m), camera.disparity(min_depth_m)]``.
     params : OrderingParams, optional
+    low_masks : (left, right) (H, W) uint8 (0/255) or bool, optional
+        The views' *low masks* (the masks plus the fainter pixels connected to them,
+        ``/suture/{left,right}/mask_low``). Both pairs are ordered and the low masks' sequences
+        are taken when they reach farther: one view longer by more than ``low_mask_min_gain``
+        and neither shorter by more than ``low_mask_max_loss`` (relative); or when the masks
+        themselves give no sequence. A faint stretch where the masks break then no longer ends
+        the thread, while where both agree the masks' narrower centrelines are kept.
 
     Returns
     -------
@@ -205,10 +216,14 @@ def order_stereo(
     ------
     OrderingError
         A subclass naming the view and the problem (see :func:`order_sequence`); also
-        :class:`InvalidInputError` when a mask's size differs from the camera's.
+        :class:`InvalidInputError` when a mask's size differs from the camera's. With low masks,
+        the masks' error when neither pair gives a sequence.
     """
     params = OrderingParams() if params is None else params
-    for view, mask in (("left", left_mask), ("right", right_mask)):
+    views = {"left": left_mask, "right": right_mask}
+    if low_masks is not None:
+        views.update({"left low": low_masks[0], "right low": low_masks[1]})
+    for view, mask in views.items():
         shape = np.shape(mask)
         if shape[:2] != (camera.height, camera.width) or len(shape) != 2:
             raise InvalidInputError(
@@ -216,6 +231,41 @@ def order_stereo(
                 f"({camera.height}, {camera.width}) from camera_info",
                 view,
             )
+    try:
+        ordering = _order_pair(left_mask, right_mask, tip_hint, camera, params)
+    except InvalidInputError:
+        raise
+    except OrderingError as error:
+        if low_masks is None:
+            raise
+        try:
+            return dataclasses.replace(_order_pair(*low_masks, tip_hint, camera, params), low_masks_used=True)
+        except OrderingError:
+            raise error from None
+    if low_masks is None:
+        return ordering
+    try:
+        low = _order_pair(*low_masks, tip_hint, camera, params)
+    except OrderingError:
+        return ordering
+    gains = [_length(low.left) / _length(ordering.left), _length(low.right) / _length(ordering.right)]
+    if max(gains) > 1 + params.low_mask_min_gain and min(gains) >= 1 - params.low_mask_max_loss:
+        return dataclasses.replace(low, low_masks_used=True)
+    return ordering
+
+
+def _length(sequence: np.ndarray) -> float:
+    return max(float(np.linalg.norm(np.diff(sequence, axis=0), axis=1).sum()), 1e-9)
+
+
+def _order_pair(
+    left_mask: np.ndarray,
+    right_mask: np.ndarray,
+    tip_hint: np.ndarray | None,
+    camera: StereoCamera,
+    params: OrderingParams,
+) -> StereoOrdering:
+    """:func:`order_stereo` of one pair of masks (of the camera's size)."""
     left, left_prepared = _order_view(left_mask, tip_hint, params, "left")
     started = time.perf_counter()
     right_prepared = _prepare(right_mask, params, "right")

@@ -7,11 +7,21 @@ Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data Q
 ``/suture/{left,right}/sequence`` (geometry_msgs/PolygonStamped, x = u, y = v, z = 0,
 header = that mask's header, reliable QoS) for each pair.
 
+With ``use_low_masks`` (default true) it also subscribes ``/suture/{left,right}/mask_low``
+(segmentation_node's low masks, the same format) and gives the pair of the masks' stamp to
+:func:`order_stereo`, which takes their sequences where they reach farther. segmentation_node
+publishes the low masks just before the masks; once low masks have been seen, a mask pair whose
+low masks have not arrived waits for them up to ``low_mask_wait`` seconds (default 0.1), or until
+the next mask pair is complete, then is ordered without them (``without_low_masks`` counts
+those). Until then (a segmenter that publishes no low masks) every pair is ordered at once from
+the masks alone. Low masks that do not fit their masks (encoding, size) are left out with a
+throttled warning.
+
 Parameters: every field of :class:`suture_ordering.OrderingParams` under its own name
 (pixel lengths for a 640 px wide image, scaled with the mask width;
 ``reference_width_px`` 0 means "use the pixel values unscaled"; the ε ranges as
-``[low, high]``), plus ``max_pending`` (unmatched masks kept per side, and pairs held
-for camera_info, default 10) and
+``[low, high]``), plus ``use_low_masks`` and ``low_mask_wait`` (above), ``max_pending`` (unmatched
+masks kept per side, and pairs held for camera_info, default 10) and
 ``hint_max_age`` (s; a tip hint older than this relative to the masks is ignored, 0 =
 any age, default 0). They are read at start-up.
 
@@ -31,7 +41,8 @@ from __future__ import annotations
 
 import dataclasses
 import sys
-from collections import deque
+import time
+from collections import OrderedDict, deque
 from typing import Any
 
 import cv2
@@ -54,9 +65,11 @@ from suture_common.stamp_buffer import StampPairBuffer
 from suture_common.topics import (
     LEFT_CAMERA_INFO,
     LEFT_MASK,
+    LEFT_MASK_LOW,
     LEFT_SEQUENCE,
     RIGHT_CAMERA_INFO,
     RIGHT_MASK,
+    RIGHT_MASK_LOW,
     RIGHT_SEQUENCE,
     TIP_HINT,
 )
@@ -68,7 +81,14 @@ NODE_NAME = "ordering_node"
 WARN_PERIOD_S = 2.0
 HINTS_KEPT = 100
 
-NODE_DEFAULTS: dict[str, Any] = {"max_pending": 10, "hint_max_age": 0.0}
+NODE_DEFAULTS: dict[str, Any] = {
+    "max_pending": 10,
+    "hint_max_age": 0.0,
+    "use_low_masks": True,
+    "low_mask_wait": 0.1,
+}
+
+MaskPair = tuple[Image, Image]
 
 
 def _parameter_defaults() -> dict[str, Any]:
@@ -116,8 +136,22 @@ class OrderingNode(Node):
         self.params = params_from_values(values)  # raises ValueError on a bad value
         self.hint_max_age_ns = int(float(values["hint_max_age"]) * 1e9)
         self.pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
-        self._waiting: deque[tuple[int, Image, Image]] = deque(maxlen=int(values["max_pending"]))
-        """Mask pairs that arrived before camera_info of both views."""
+        self._waiting: deque[tuple[int, Image, Image, MaskPair | None]] = deque(
+            maxlen=int(values["max_pending"])
+        )
+        """Mask pairs (with their low masks) that arrived before camera_info of both views."""
+        self.use_low_masks = bool(values["use_low_masks"])
+        self.low_pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
+        self._low: OrderedDict[int, MaskPair] = OrderedDict()
+        """Low mask pairs by stamp, waiting for their masks (the newest ``max_pending``)."""
+        self._awaiting_low: OrderedDict[int, tuple[MaskPair, float]] = OrderedDict()
+        """Mask pairs waiting for their low masks, with the monotonic time they wait until."""
+        self.low_mask_wait_s = float(values["low_mask_wait"])
+        if not self.low_mask_wait_s >= 0:
+            raise ValueError(f"low_mask_wait must be >= 0 s, got {self.low_mask_wait_s}")
+        self.low_masks_seen = False
+        self.without_low_masks = 0
+        """Mask pairs ordered without their low masks after low masks had been seen."""
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: StereoCamera | None = None
         self._hints: dict[int, PointStamped] = {}  # by stamp (ns), insertion order
@@ -129,6 +163,14 @@ class OrderingNode(Node):
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
         self.create_subscription(Image, LEFT_MASK, lambda m: self._on_mask("left", m), SENSOR_DATA_QOS)
         self.create_subscription(Image, RIGHT_MASK, lambda m: self._on_mask("right", m), SENSOR_DATA_QOS)
+        if self.use_low_masks:
+            self.create_timer(min(0.02, self.low_mask_wait_s or 0.02), self._order_overdue)
+            self.create_subscription(
+                Image, LEFT_MASK_LOW, lambda m: self._on_low_mask("left", m), SENSOR_DATA_QOS
+            )
+            self.create_subscription(
+                Image, RIGHT_MASK_LOW, lambda m: self._on_low_mask("right", m), SENSOR_DATA_QOS
+            )
         self.create_subscription(PointStamped, TIP_HINT, self._on_hint, SENSOR_DATA_QOS)
         self.create_subscription(
             CameraInfo, LEFT_CAMERA_INFO, lambda m: self._on_camera_info("left", m), SENSOR_DATA_QOS
@@ -159,9 +201,41 @@ class OrderingNode(Node):
         if stamp_ns is None:
             return
         paired = self.pairer.add(side, stamp_ns, message)
-        if paired is not None:
-            left, right = paired
-            self._process(stamp_ns, left, right)
+        if paired is None:
+            return
+        self._order_overdue(everything=True)  # a newer pair is complete: the older ones waited enough
+        low = self._low.pop(stamp_ns, None)
+        if low is not None or not self.low_masks_seen:
+            self._process(stamp_ns, *paired, low)
+            return
+        self._awaiting_low[stamp_ns] = (paired, time.monotonic() + self.low_mask_wait_s)
+
+    def _order_overdue(self, everything: bool = False) -> None:
+        """Order, without their low masks, the pairs that waited for them until now (or all)."""
+        now = time.monotonic()
+        while self._awaiting_low:
+            stamp_ns, (paired, deadline) = next(iter(self._awaiting_low.items()))
+            if not everything and deadline > now:
+                return
+            del self._awaiting_low[stamp_ns]
+            self.without_low_masks += 1
+            self._process(stamp_ns, *paired, None)
+
+    def _on_low_mask(self, side: str, message: Image) -> None:
+        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} low mask")
+        if stamp_ns is None:
+            return
+        paired = self.low_pairer.add(side, stamp_ns, message)
+        if paired is None:
+            return
+        self.low_masks_seen = True
+        waiting = self._awaiting_low.pop(stamp_ns, None)
+        if waiting is not None:
+            self._process(stamp_ns, *waiting[0], paired)
+            return
+        self._low[stamp_ns] = paired
+        while len(self._low) > self.pairer.capacity:
+            self._low.popitem(last=False)
 
     # ------------------------------------------------------------------ one stereo pair
 
@@ -189,10 +263,10 @@ class OrderingNode(Node):
         point = self._hints[hint_stamp].point
         return np.array([point.x, point.y], dtype=np.float64)  # NaN is reported by order_stereo
 
-    def _process(self, stamp_ns: int, left: Image, right: Image) -> None:
+    def _process(self, stamp_ns: int, left: Image, right: Image, low: MaskPair | None = None) -> None:
         missing = self._missing_camera_info()
         if missing:  # a camera driver may start after us: hold the newest pairs until it speaks
-            self._waiting.append((stamp_ns, left, right))
+            self._waiting.append((stamp_ns, left, right, low))
             self._warnings.warn(
                 "camera_info",
                 f"holding masks: no {' or '.join(missing)} camera_info received yet "
@@ -209,8 +283,11 @@ class OrderingNode(Node):
         except MessageConversionError as exc:
             self._warnings.warn("mask", f"dropped masks at {stamp_ns} ns: {exc}")
             return
+        low_masks = self._low_masks(stamp_ns, low, left_mask.shape)
         try:
-            result = order_stereo(left_mask, right_mask, self._tip_hint(stamp_ns), camera, self.params)
+            result = order_stereo(
+                left_mask, right_mask, self._tip_hint(stamp_ns), camera, self.params, low_masks
+            )
         except OrderingError as exc:
             self._warnings.warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
             return
@@ -220,6 +297,23 @@ class OrderingNode(Node):
         ):
             publisher.publish(serialized(polygon_message(points, stamp_ns, header.frame_id)))
         self.frames_published += 1
+
+    def _low_masks(
+        self, stamp_ns: int, low: MaskPair | None, shape: tuple[int, ...]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The low masks as arrays of the masks' ``shape``, or None (with a warning when unusable)."""
+        if low is None:
+            return None
+        try:
+            arrays = image_to_array(low[0], expect="mono8"), image_to_array(low[1], expect="mono8")
+        except MessageConversionError as exc:
+            problem = str(exc)
+        else:
+            if arrays[0].shape == arrays[1].shape == shape:
+                return arrays
+            problem = f"sizes {arrays[0].shape} and {arrays[1].shape}, masks {shape}"
+        self._warnings.warn("low_mask", f"masks at {stamp_ns} ns ordered without their low masks: {problem}")
+        return None
 
 
 def main(args: list[str] | None = None) -> int:

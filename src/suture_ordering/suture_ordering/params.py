@@ -103,6 +103,11 @@ class OrderingParams:
     #: other view (shifted by the disparity, kept where this view's mask confirms it) across
     #: gaps of up to this many px; 0 turns it off (:mod:`suture_ordering.stereo_fill`).
     stereo_fill_max_gap_px: float = 60.0
+    #: With low masks (:func:`suture_ordering.order_stereo`), their sequences are taken when one
+    #: view's is longer than the masks' by more than this share ...
+    low_mask_min_gain: float = 0.1
+    #: ... and neither view's is shorter by more than this share.
+    low_mask_max_loss: float = 0.02
     #: Upper bound on search steps (a safeguard; a 640 px image needs < 200).
     max_steps: int = 2000
     #: Width the pixel values above refer to; None: use them unscaled.
@@ -166,6 +171,10 @@ class OrderingParams:
         gap = self.stereo_fill_max_gap_px
         if not (isinstance(gap, (int, float)) and math.isfinite(gap) and gap >= 0):
             raise ValueError(f"OrderingParams.stereo_fill_max_gap_px must be >= 0 (0: off), got {gap!r}")
+        for name in ("low_mask_min_gain", "low_mask_max_loss"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 <= value < 1):
+                raise ValueError(f"OrderingParams.{name} must be in [0, 1), got {value!r}")
         if self.max_hole_area_px < 0:
             raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
         if int(self.max_steps) != self.max_steps or self.max_steps < 1:

@@ -54,6 +54,8 @@ def ros():
         for topic, kind in (
             (topics.LEFT_MASK, node_types()["Image"]),
             (topics.RIGHT_MASK, node_types()["Image"]),
+            (topics.LEFT_MASK_LOW, node_types()["Image"]),
+            (topics.RIGHT_MASK_LOW, node_types()["Image"]),
             (topics.TIP_HINT, node_types()["PointStamped"]),
             (topics.LEFT_CAMERA_INFO, node_types()["CameraInfo"]),
             (topics.RIGHT_CAMERA_INFO, node_types()["CameraInfo"]),
@@ -207,3 +209,41 @@ def test_masks_use_the_tip_hint_of_their_own_stamp_not_the_latest(ros):
     assert node._tip_hint(STAMP + 100)[0] == 100.0  # no hint of its own: the newest earlier one
     assert node._tip_hint(STAMP + 200)[0] == 300.0
     assert node._tip_hint(STAMP - 1) is None  # every hint is newer than these masks
+
+
+def test_low_masks_of_the_stamp_carry_the_sequences_across_a_faint_stretch(ros):
+    """Masks broken for 92 px in both views (a faint stretch) end the sequences there; the low
+    masks of the same stamp, published just before them as segmentation_node does, are whole and
+    give the sequences to the end. A later pair whose low masks never come is ordered from its
+    masks alone once it has waited low_mask_wait, and counted."""
+    executor, node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    low_left, low_right, truth = _scene()
+    faint = slice(600, 900)  # samples of the 1500 along the thread: a 92 px stretch
+    left, right = low_left.copy(), low_right.copy()
+    box = np.rint(truth[faint]).astype(int)
+    for mask, shift in ((left, 0), (right, 30)):
+        mask[box[:, 1].min() - 4 : box[:, 1].max() + 5, box[:, 0].min() - shift : box[:, 0].max() - shift] = 0
+    _wait_for_subscribers(executor, publishers)
+
+    def reach(message: PolygonStamped) -> float:
+        return cKDTree(truth).query(polygon_to_array(message)[-1, :2])[1] / len(truth)
+
+    def answered(stamp: int) -> bool:
+        return any(m.header.stamp.nanosec == stamp % 10**9 for m in received[topics.LEFT_SEQUENCE])
+
+    for stamp, with_low in ((STAMP, True), (STAMP + 1, False)):
+        for _ in range(20):
+            if with_low:
+                for topic, mask, frame in (
+                    (topics.LEFT_MASK_LOW, low_left, topics.LEFT_FRAME),
+                    (topics.RIGHT_MASK_LOW, low_right, topics.RIGHT_FRAME),
+                ):
+                    publishers[topic].publish(to_rclpy(image_message(mask, "mono8", stamp, frame)))
+            _send_frame(publishers, stamp, left, right, truth[0] + 1.0, camera, executor=executor)
+            if spin_until(executor, lambda s=stamp: answered(s), 0.5):
+                break
+        assert answered(stamp), f"no sequences for the pair {'with' if with_low else 'without'} low masks"
+    whole, broken = received[topics.LEFT_SEQUENCE][0], received[topics.LEFT_SEQUENCE][-1]
+    assert reach(whole) > 0.95 and reach(broken) < 0.5
+    assert node.low_masks_seen and node.without_low_masks >= 1

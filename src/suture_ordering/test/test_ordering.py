@@ -274,6 +274,60 @@ def test_order_stereo_rejects_masks_of_the_wrong_size():
         order_stereo(left, left[:, :600], np.array([300.0, 100.0]), camera)
 
 
+def _faint_stretch_scene():
+    """A thread whose masks lose a 92 px stretch in both views (the faint part the segmenter's
+    probability left between its two thresholds), and low masks that keep it."""
+    s = np.linspace(0, 1, 1500)
+    truth = np.column_stack([150 + 380 * s, 120 + 250 * s + 60 * np.sin(3 * s)])
+    low_left = draw([truth])
+    masks = [draw([truth[:600], truth[900:]]), None]
+    masks[1] = _shifted(masks[0], 30)
+    return masks, (low_left, _shifted(low_left, 30)), truth
+
+
+def test_low_masks_carry_the_sequences_across_a_faint_stretch():
+    camera = StereoCamera.default(W, H)
+    (left, right), low, truth = _faint_stretch_scene()
+    alone = order_stereo(left, right, truth[0] + 1.0, camera)
+    assert not alone.low_masks_used and alone.left_result.length_px < 250  # of ~480 px: stops there
+    result = order_stereo(left, right, truth[0] + 1.0, camera, low_masks=low)
+    assert result.low_masks_used
+    check_follows(result.left, truth, tolerance=1.5)
+    check_follows(result.right, truth - [30, 0], tolerance=1.5)
+
+
+def test_low_masks_that_reach_no_farther_leave_the_masks_sequences():
+    # Low masks one pixel wider all along (the faint rim of a thread): same length, masks kept.
+    camera = StereoCamera.default(W, H)
+    s = np.linspace(0, 1, 1200)
+    truth = np.column_stack([150 + 380 * s, 120 + 250 * s + 60 * np.sin(3 * s)])
+    left = draw([truth])
+    wider = cv2.dilate(left, np.ones((3, 3), np.uint8))
+    alone = order_stereo(left, _shifted(left, 30), truth[0] + 1.5, camera)
+    result = order_stereo(
+        left, _shifted(left, 30), truth[0] + 1.5, camera, low_masks=(wider, _shifted(wider, 30))
+    )
+    assert not result.low_masks_used
+    assert np.array_equal(result.left, alone.left) and np.array_equal(result.right, alone.right)
+
+
+def test_low_masks_give_the_sequences_when_the_masks_miss_the_cut_tip():
+    # The masks lost the faint cut end (30 px): no thread near the hint; the low masks keep it.
+    camera = StereoCamera.default(W, H)
+    (_, _), (low_left, low_right), truth = _faint_stretch_scene()
+    left, right = low_left.copy(), low_right.copy()
+    left[:, :185], right[:, :155] = 0, 0
+    with pytest.raises(TipNotOnThreadError):
+        order_stereo(left, right, truth[0], camera)
+    result = order_stereo(left, right, truth[0], camera, low_masks=(low_left, low_right))
+    assert result.low_masks_used
+    check_follows(result.left, truth, tolerance=1.5)
+    with pytest.raises(TipNotOnThreadError):  # low masks without the tip either: the masks' error
+        order_stereo(left, right, truth[0], camera, low_masks=(left, right))
+    with pytest.raises(InvalidInputError, match="left low view"):
+        order_stereo(low_left, low_right, truth[0], camera, low_masks=(low_left[:, :600], low_right))
+
+
 def _gap_in_right_view(gap_rows: tuple[int, int], disparity_after: float = 30.0):
     """A steep thread seen by both views, the right mask missing rows ``gap_rows`` of it; the
     disparity is 30 px before the gap and ``disparity_after`` beyond it (the thread rises)."""

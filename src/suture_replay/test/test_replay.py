@@ -257,7 +257,7 @@ def test_topic_tables():
     assert set(topics.INPUT_TOPICS) | set(topics.PIPELINE_OUTPUT_TOPICS) | set(
         topics.GROUND_TRUTH_TOPICS
     ) == set(topics.TOPIC_TYPES)
-    assert len(topics.PIPELINE_OUTPUT_TOPICS) == 10
+    assert len(topics.PIPELINE_OUTPUT_TOPICS) == 12
     assert topics.TOPIC_TYPES[topics.TARGET_POSE] == "geometry_msgs/msg/PoseStamped"
     assert topics.TOPIC_TYPES[topics.EXECUTOR_STATE] == "std_msgs/msg/String"
     assert all(msgtype in TYPESTORE.types for msgtype in topics.TOPIC_TYPES.values())

@@ -1,4 +1,4 @@
-"""segmentation_node: rectified stereo images in, suture masks out, through :meth:`Segmenter.segment_pair`.
+"""segmentation_node: rectified stereo images in, suture masks out (:meth:`Segmenter.segment_pair_with_low`).
 
 Subscribes ``/stereo/left/image_rect`` and ``/stereo/right/image_rect`` (sensor_msgs/Image,
 rgb8, bgr8 or mono8, sensor-data QoS keeping the last ``queue_depth`` images: by default only
@@ -7,7 +7,10 @@ stale ones), pairs them by exact ``header.stamp``
 (:class:`suture_common.stamp_buffer.StampPairBuffer`), segments both views as one batch and
 publishes ``/suture/left/mask`` and ``/suture/right/mask`` (sensor_msgs/Image mono8, 0 or 255,
 the header of the input image of that side, sensor-data QoS). bgr8 images are reordered to RGB
-before they reach the model; mono8 images are segmented as grey.
+before they reach the model; mono8 images are segmented as grey. Just before them it publishes
+the pair's *low masks*, ``/suture/{left,right}/mask_low`` (the same format: the mask plus the
+pixels above ``low_threshold`` connected to it, :meth:`Segmenter.segment_pair_with_low`), which
+ordering_node follows where the thread is faint; ``low_threshold`` 0 publishes none.
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped M-ToSOT
 model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot" name a shipped model and
@@ -53,9 +56,14 @@ from suture_common.ros import (
     stamp_or_drop,
 )
 from suture_common.stamp_buffer import StampPairBuffer
-from suture_common.topics import LEFT_IMAGE, LEFT_MASK, RIGHT_IMAGE, RIGHT_MASK
+from suture_common.topics import LEFT_IMAGE, LEFT_MASK, LEFT_MASK_LOW, RIGHT_IMAGE, RIGHT_MASK, RIGHT_MASK_LOW
 from suture_segmentation.checkpoint import WeightsError
-from suture_segmentation.core import SegmentationInputError, Segmenter, StereoSizeMismatchError
+from suture_segmentation.core import (
+    LOW_THRESHOLD,
+    SegmentationInputError,
+    Segmenter,
+    StereoSizeMismatchError,
+)
 
 NODE_NAME = "segmentation_node"
 
@@ -64,6 +72,11 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "backend": ("onnx", "inference backend: onnx (ONNX Runtime) or torch"),
     "device": ("cpu", "cpu or cuda[:N]"),
     "threshold": (0.5, "suture probability above which a pixel is suture, in (0, 1)"),
+    "low_threshold": (
+        LOW_THRESHOLD,
+        "lower threshold of the low masks (mask_low topics: pixels above it connected to the mask), "
+        "in (0, threshold]; 0: no low masks",
+    ),
     "input_width": (0, "width the images are resized to for inference (0 with input_height 0: own size)"),
     "input_height": (0, "height the images are resized to for inference (0 with input_width 0: own size)"),
     "threads": (0, "CPU threads of the backend (0: the runtime's default)"),
@@ -94,6 +107,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             f"input_width and input_height must both be 0 (the image's own size) or both positive, "
             f"got {width} and {height}"
         )
+    low_threshold = float(values["low_threshold"])
     threads = int(values["threads"])
     if threads < 0:
         raise ValueError(f"threads must be >= 0 (0: the runtime's default), got {threads}")
@@ -106,6 +120,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             threshold=float(values["threshold"]),
             input_size=input_size,
             threads=threads or None,
+            low_threshold=low_threshold or None,
         )
     except WeightsError as exc:
         hint = "" if weights else " (the shipped M-ToSOT; set the parameter weights to a .pt or .onnx file)"
@@ -113,7 +128,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
 
 
 class SegmentationNode(Node):
-    """Thin adapter between ROS topics and :meth:`Segmenter.segment_pair` (module docstring)."""
+    """Thin adapter between ROS topics and :meth:`Segmenter.segment_pair_with_low` (module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -130,6 +145,12 @@ class SegmentationNode(Node):
 
         self._left_pub = self.create_publisher(Image, LEFT_MASK, SENSOR_DATA_QOS)
         self._right_pub = self.create_publisher(Image, RIGHT_MASK, SENSOR_DATA_QOS)
+        self._low_pubs = None
+        if self.segmenter.low_threshold is not None:
+            self._low_pubs = (
+                self.create_publisher(Image, LEFT_MASK_LOW, SENSOR_DATA_QOS),
+                self.create_publisher(Image, RIGHT_MASK_LOW, SENSOR_DATA_QOS),
+            )
         images_qos = sensor_data_qos(int(values["queue_depth"]))  # ValueError below 1
         self.create_subscription(Image, LEFT_IMAGE, lambda m: self._on_image("left", m), images_qos)
         self.create_subscription(Image, RIGHT_IMAGE, lambda m: self._on_image("right", m), images_qos)
@@ -162,7 +183,7 @@ class SegmentationNode(Node):
                 )
                 return None
         try:
-            left_mask, right_mask = self.segmenter.segment_pair(*images)
+            (left_mask, right_mask), low_masks = self.segmenter.segment_pair_with_low(*images)
         except StereoSizeMismatchError as exc:
             self._warnings.warn("size_mismatch", f"dropped stereo pair at {stamp_ns} ns: {exc}")
             return None
@@ -175,10 +196,10 @@ class SegmentationNode(Node):
                 f"dropped stereo pair at {stamp_ns} ns: inference failed: {type(exc).__name__}: {exc}",
             )
             return None
-        for publisher, mask, header in (
-            (self._left_pub, left_mask, left.header),
-            (self._right_pub, right_mask, right.header),
-        ):
+        outputs = [(self._left_pub, left_mask, left.header), (self._right_pub, right_mask, right.header)]
+        if self._low_pubs is not None and low_masks is not None:  # first: ordering_node waits for them
+            outputs[:0] = zip(self._low_pubs, low_masks, (left.header, right.header), strict=True)
+        for publisher, mask, header in outputs:
             publisher.publish(serialized(image_message(mask, "mono8", stamp_ns, header.frame_id)))
         self.frames += 1
         return left_mask, right_mask

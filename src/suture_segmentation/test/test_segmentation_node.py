@@ -89,11 +89,17 @@ class Harness:
             "right": self.peer.create_publisher(Image, topics.RIGHT_IMAGE, SENSOR_DATA_QOS),
         }
         self.masks: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
-        for side, topic in (("left", topics.LEFT_MASK), ("right", topics.RIGHT_MASK)):
+        self.low_masks: dict[str, dict[int, Image]] = {"left": {}, "right": {}}
+        for store, side, topic in (
+            (self.masks, "left", topics.LEFT_MASK),
+            (self.masks, "right", topics.RIGHT_MASK),
+            (self.low_masks, "left", topics.LEFT_MASK_LOW),
+            (self.low_masks, "right", topics.RIGHT_MASK_LOW),
+        ):
             self.peer.create_subscription(
                 Image,
                 topic,
-                lambda m, s=side: self.masks[s].setdefault(ns_from_stamp(m.header.stamp), m),
+                lambda m, s=side, store=store: store[s].setdefault(ns_from_stamp(m.header.stamp), m),
                 SENSOR_DATA_QOS,
             )
         assert spin_until(self.executor, self._matched, TIMEOUT), "publishers and subscriptions did not match"
@@ -109,7 +115,9 @@ class Harness:
             self.publishers[side].publish(message if isinstance(message, Image) else to_rclpy(message))
 
     def has_masks(self, stamp_ns: int) -> bool:
-        return all(stamp_ns in received for received in self.masks.values())
+        """Both masks of the stamp came, and both low masks if the node publishes them."""
+        low = self.low_masks.values() if self.node.segmenter.low_threshold is not None else ()
+        return all(stamp_ns in received for received in (*self.masks.values(), *low))
 
     def segment(self, left: object, right: object) -> tuple[Image, Image]:
         """Send a pair until both of its masks come back (sensor-data QoS is best effort)."""
@@ -168,6 +176,13 @@ def test_sample_bag_masks_match_the_ground_truth(context, sample_frames):
                 scores.append(iou(pixels, truth))
         per_frame = np.round(scores, 3).reshape(-1, 2).tolist()
         print("per-frame IoU (left, right):", per_frame)
+        # the low masks of each pair, published just before its masks: the masks and more
+        for side in ("left", "right"):
+            for stamp_ns, mask in harness.masks[side].items():
+                low = image_to_array(harness.low_masks[side][stamp_ns])
+                assert low.shape == image_to_array(mask).shape and set(np.unique(low)) <= {0, 255}
+                assert np.all(low[image_to_array(mask) > 0] == 255)
+                assert harness.low_masks[side][stamp_ns].header.frame_id == mask.header.frame_id
         assert min(scores) >= MIN_IOU, f"IoU (left, right) per frame below {MIN_IOU}: {per_frame}"
         assert np.mean(scores) >= MIN_MEAN_IOU, f"mean IoU below {MIN_MEAN_IOU}: {per_frame}"
 
@@ -277,6 +292,7 @@ def test_queue_depth_bounds_the_images_waiting(context, random_weights, queue_de
         ({"input_width": 320}, "input_width and input_height"),
         ({"threads": -1}, "threads"),
         ({"threshold": 1.5}, "threshold"),
+        ({"low_threshold": 0.7}, "low_threshold"),
         ({"backend": "tensorrt"}, "backend"),
     ],
 )
@@ -284,3 +300,14 @@ def test_bad_parameters_refuse_to_start(context, random_weights, overrides, matc
     parameters = [Parameter(n, value=v) for n, v in {"weights": str(random_weights), **overrides}.items()]
     with pytest.raises(ValueError, match=match):
         SegmentationNode(context=context, parameter_overrides=parameters)
+
+
+def test_low_threshold_zero_publishes_no_low_masks(context, random_weights):
+    harness = Harness(context, weights=str(random_weights), low_threshold=0.0)
+    try:
+        stamp = 1_700_000_000_000_000_000
+        harness.segment(_image(stamp, topics.LEFT_FRAME), _image(stamp, topics.RIGHT_FRAME))
+        assert harness.peer.count_publishers(topics.LEFT_MASK_LOW) == 0
+        assert not any(harness.low_masks.values())
+    finally:
+        harness.close()

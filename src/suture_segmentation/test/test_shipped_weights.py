@@ -6,6 +6,7 @@ The on-site frames here are fresh simulator frames (seed 4242, not the training 
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -77,3 +78,40 @@ def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str,
     # measured: masks agree to IoU 0.88-0.99 per view (edge pixels of a 2 px thread flip)
     assert np.mean(agreement) > 0.85
     assert abs(np.mean(truth_iou["int8"]) - np.mean(truth_iou["float"])) < 0.03
+
+
+def test_low_masks_add_the_faint_thread_connected_to_the_masks() -> None:
+    """segment_pair_with_low: the masks as segment_pair gives them, and low masks that hold them
+    plus only pixels of probability in (low_threshold, threshold] connected to them; on legacy
+    frames (M-oST int8) the added pixels are mostly thread (a faint stretch), not background."""
+    config = SimConfig(topology="mixed", domain="legacy", camera=StereoCamera.default(640, 480), seed=4343)
+    segmenter = Segmenter("m_ost_int8")
+    added = on_thread = 0
+    for frame in (generate_frame(config, index) for index in range(4)):
+        (left, right), low = segmenter.segment_pair_with_low(frame.left_image, frame.right_image)
+        assert all(
+            np.array_equal(a, b)
+            for a, b in zip(
+                (left, right), segmenter.segment_pair(frame.left_image, frame.right_image), strict=True
+            )
+        )
+        probability = segmenter.probabilities([frame.left_image, frame.right_image])
+        for mask, low_mask, p, truth in zip(
+            (left, right), low, probability, (frame.left_mask, frame.right_mask), strict=True
+        ):
+            assert set(np.unique(low_mask)) <= {0, 255} and np.all(low_mask[mask > 0] == 255)
+            extra = (low_mask > 0) & (mask == 0)
+            assert np.all((p[extra] > 0.3) & (p[extra] <= 0.5))
+            components, labels = cv2.connectedComponents((low_mask > 0).astype(np.uint8), connectivity=4)
+            assert set(np.unique(labels[mask > 0])) == set(range(1, components))  # each holds mask
+            added += int(extra.sum())
+            on_thread += int((extra & (cv2.dilate(truth, np.ones((3, 3), np.uint8)) > 0)).sum())
+    assert added > 0 and on_thread > 0.5 * added
+    assert (
+        Segmenter("m_ost_int8", low_threshold=None).segment_pair_with_low(
+            frame.left_image, frame.right_image
+        )[1]
+        is None
+    )
+    with pytest.raises(ValueError, match="low_threshold"):
+        Segmenter("m_ost_int8", low_threshold=0.6)
