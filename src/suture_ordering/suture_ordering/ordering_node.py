@@ -196,13 +196,21 @@ class OrderingNode(Node):
         if len(self._hints) > HINTS_KEPT:
             del self._hints[next(iter(self._hints))]
 
-    def _on_mask(self, side: str, message: Image) -> None:
-        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} mask")
+    def _paired(
+        self, pairer: StampPairBuffer[Image], side: str, message: Image, what: str
+    ) -> tuple[int, MaskPair] | None:
+        """The stamp and the (left, right) pair ``message`` completes, or None."""
+        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} {what}")
         if stamp_ns is None:
+            return None
+        paired = pairer.add(side, stamp_ns, message)
+        return None if paired is None else (stamp_ns, paired)
+
+    def _on_mask(self, side: str, message: Image) -> None:
+        completed = self._paired(self.pairer, side, message, "mask")
+        if completed is None:
             return
-        paired = self.pairer.add(side, stamp_ns, message)
-        if paired is None:
-            return
+        stamp_ns, paired = completed
         self._order_overdue(everything=True)  # a newer pair is complete: the older ones waited enough
         low = self._low.pop(stamp_ns, None)
         if low is not None or not self.low_masks_seen:
@@ -222,12 +230,10 @@ class OrderingNode(Node):
             self._process(stamp_ns, *paired, None)
 
     def _on_low_mask(self, side: str, message: Image) -> None:
-        stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} low mask")
-        if stamp_ns is None:
+        completed = self._paired(self.low_pairer, side, message, "low mask")
+        if completed is None:
             return
-        paired = self.low_pairer.add(side, stamp_ns, message)
-        if paired is None:
-            return
+        stamp_ns, paired = completed
         self.low_masks_seen = True
         waiting = self._awaiting_low.pop(stamp_ns, None)
         if waiting is not None:
