@@ -161,7 +161,7 @@ class Segmenter:
 
     def segment(self, images: list[np.ndarray]) -> list[np.ndarray]:
         """(H, W) uint8 masks (0 or 255) of equally sized images, run as one batch."""
-        return [np.where(p > self.threshold, 255, 0).astype(np.uint8) for p in self.probabilities(images)]
+        return [_as_mask(p > self.threshold) for p in self.probabilities(images)]
 
     def segment_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Masks of a stereo pair (one batch of two).
@@ -190,7 +190,7 @@ class Segmenter:
         """
         _check_same_size(left, right)
         probability = self.probabilities([left, right])
-        masks = tuple(np.where(p > self.threshold, 255, 0).astype(np.uint8) for p in probability)
+        masks = [_as_mask(p > self.threshold) for p in probability]
         if self.low_threshold is None:
             return (masks[0], masks[1]), None
         low = [apply_hysteresis_threshold(p, self.low_threshold, self.threshold) for p in probability]
@@ -198,6 +198,7 @@ class Segmenter:
 
 
 def _as_mask(thread: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 0/255 mask of a boolean array."""
     return np.where(thread, 255, 0).astype(np.uint8)
 
 
