@@ -8,6 +8,10 @@ their stamp (integer nanoseconds). When the item of the other side with the same
 stamp arrives, the pair is returned and removed. Each side keeps at most
 ``capacity`` unmatched stamps; the earliest received are dropped first (and counted), so a
 side whose partner never arrives cannot grow the buffer.
+
+:class:`StampedPairs` keeps the completed pairs too, the newest ``capacity``, until they are
+taken by stamp: for an input that a node looks up when another input of the same stamp is
+complete (reconstruction_node's images, ordering_node's low masks).
 """
 
 from __future__ import annotations
@@ -57,3 +61,30 @@ class StampPairBuffer(Generic[T]):
     def clear(self) -> None:
         for pending in self._pending.values():
             pending.clear()
+
+
+class StampedPairs(Generic[T]):
+    """Completed (left, right) pairs by stamp, the newest ``capacity``, taken by stamp."""
+
+    def __init__(self, capacity: int = 30) -> None:
+        self._pairer: StampPairBuffer[T] = StampPairBuffer(capacity)  # ValueError below 1
+        self.capacity = capacity
+        self._pairs: OrderedDict[int, tuple[T, T]] = OrderedDict()
+
+    def add(self, side: str, stamp_ns: int, item: T) -> tuple[T, T] | None:
+        """Add ``item`` of ``side``; when it completes its stamp's pair, keep the pair (dropping the
+        earliest beyond ``capacity``) and return it."""
+        pair = self._pairer.add(side, stamp_ns, item)
+        if pair is not None:
+            self._pairs.pop(stamp_ns, None)
+            self._pairs[stamp_ns] = pair
+            while len(self._pairs) > self.capacity:
+                self._pairs.popitem(last=False)
+        return pair
+
+    def take(self, stamp_ns: int) -> tuple[T, T] | None:
+        """The pair of ``stamp_ns``, removed, or None if there is none (not complete, or dropped)."""
+        return self._pairs.pop(stamp_ns, None)
+
+    def __len__(self) -> int:
+        return len(self._pairs)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from suture_common.stamp_buffer import StampPairBuffer
+from suture_common.stamp_buffer import StampedPairs, StampPairBuffer
 
 
 def test_pairs_by_exact_stamp_in_either_order():
@@ -31,3 +31,16 @@ def test_bad_arguments():
         StampPairBuffer(0)
     with pytest.raises(ValueError):
         StampPairBuffer().add("middle", 1, None)
+
+
+def test_stamped_pairs_keep_the_newest_complete_pairs_until_taken():
+    pairs: StampedPairs[str] = StampedPairs(capacity=2)
+    assert pairs.add("left", 1, "L1") is None and len(pairs) == 0 and pairs.take(1) is None
+    for stamp in (1, 2, 3):
+        pairs.add("right" if stamp == 1 else "left", stamp, f"x{stamp}")
+        if stamp > 1:
+            assert pairs.add("right", stamp, f"R{stamp}") == (f"x{stamp}", f"R{stamp}")
+    assert len(pairs) == 2 and pairs.take(1) is None  # the earliest complete pair was dropped
+    assert pairs.take(3) == ("x3", "R3") and pairs.take(3) is None and len(pairs) == 1
+    with pytest.raises(ValueError):
+        StampedPairs(capacity=0)

@@ -24,7 +24,7 @@ from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
 from suture_ordering.errors import InvalidInputError, OrderingError
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
-from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
+from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
 from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
 
 
@@ -255,7 +255,7 @@ def order_stereo(
 
 
 def _length(sequence: np.ndarray) -> float:
-    return max(float(np.linalg.norm(np.diff(sequence, axis=0), axis=1).sum()), 1e-9)
+    return max(float(arc_length(sequence)[-1]), 1e-9)
 
 
 def _order_pair(

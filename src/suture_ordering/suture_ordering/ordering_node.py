@@ -61,7 +61,7 @@ from suture_common.ros import (
     serialized,
     stamp_or_drop,
 )
-from suture_common.stamp_buffer import StampPairBuffer
+from suture_common.stamp_buffer import StampedPairs, StampPairBuffer
 from suture_common.topics import (
     LEFT_CAMERA_INFO,
     LEFT_MASK,
@@ -141,8 +141,7 @@ class OrderingNode(Node):
         )
         """Mask pairs (with their low masks) that arrived before camera_info of both views."""
         self.use_low_masks = bool(values["use_low_masks"])
-        self.low_pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
-        self._low: OrderedDict[int, MaskPair] = OrderedDict()
+        self._low_mask_pairs: StampedPairs[Image] = StampedPairs(int(values["max_pending"]))
         """Low mask pairs by stamp, waiting for their masks (the newest ``max_pending``)."""
         self._awaiting_low: OrderedDict[int, tuple[MaskPair, float]] = OrderedDict()
         """Mask pairs waiting for their low masks, with the monotonic time they wait until."""
@@ -163,8 +162,10 @@ class OrderingNode(Node):
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
         self.create_subscription(Image, LEFT_MASK, lambda m: self._on_mask("left", m), SENSOR_DATA_QOS)
         self.create_subscription(Image, RIGHT_MASK, lambda m: self._on_mask("right", m), SENSOR_DATA_QOS)
+        # Runs only while a pair waits for its low masks (reset then, cancelled when none waits).
+        self._low_mask_timer = self.create_timer(max(self.low_mask_wait_s, 0.001), self._order_overdue)
+        self._low_mask_timer.cancel()
         if self.use_low_masks:
-            self.create_timer(min(0.02, self.low_mask_wait_s or 0.02), self._order_overdue)
             self.create_subscription(
                 Image, LEFT_MASK_LOW, lambda m: self._on_low_mask("left", m), SENSOR_DATA_QOS
             )
@@ -197,7 +198,7 @@ class OrderingNode(Node):
             del self._hints[next(iter(self._hints))]
 
     def _paired(
-        self, pairer: StampPairBuffer[Image], side: str, message: Image, what: str
+        self, pairer: StampPairBuffer[Image] | StampedPairs[Image], side: str, message: Image, what: str
     ) -> tuple[int, MaskPair] | None:
         """The stamp and the (left, right) pair ``message`` completes, or None."""
         stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} {what}")
@@ -212,11 +213,12 @@ class OrderingNode(Node):
             return
         stamp_ns, paired = completed
         self._order_overdue(everything=True)  # a newer pair is complete: the older ones waited enough
-        low = self._low.pop(stamp_ns, None)
+        low = self._low_mask_pairs.take(stamp_ns)
         if low is not None or not self.low_masks_seen:
             self._process(stamp_ns, *paired, low)
             return
         self._awaiting_low[stamp_ns] = (paired, time.monotonic() + self.low_mask_wait_s)
+        self._low_mask_timer.reset()
 
     def _order_overdue(self, everything: bool = False) -> None:
         """Order, without their low masks, the pairs that waited for them until now (or all)."""
@@ -228,20 +230,17 @@ class OrderingNode(Node):
             del self._awaiting_low[stamp_ns]
             self.without_low_masks += 1
             self._process(stamp_ns, *paired, None)
+        self._low_mask_timer.cancel()
 
     def _on_low_mask(self, side: str, message: Image) -> None:
-        completed = self._paired(self.low_pairer, side, message, "low mask")
+        completed = self._paired(self._low_mask_pairs, side, message, "low mask")
         if completed is None:
             return
-        stamp_ns, paired = completed
+        stamp_ns, _ = completed
         self.low_masks_seen = True
         waiting = self._awaiting_low.pop(stamp_ns, None)
         if waiting is not None:
-            self._process(stamp_ns, *waiting[0], paired)
-            return
-        self._low[stamp_ns] = paired
-        while len(self._low) > self.pairer.capacity:
-            self._low.popitem(last=False)
+            self._process(stamp_ns, *waiting[0], self._low_mask_pairs.take(stamp_ns))
 
     # ------------------------------------------------------------------ one stereo pair
 

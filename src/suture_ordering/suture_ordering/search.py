@@ -134,6 +134,7 @@ class _Stop:
 _STOP = _Stop()
 _TAIL_MAX_TURN = math.pi / 3
 _PULLED_TURN = math.radians(5.0)
+_MAX_OUTSIDE_ZONE = 0.1  # share of a smooth (Hermite) step that may leave the zone
 
 
 @dataclass(frozen=True)
@@ -586,7 +587,7 @@ class Searcher:
             curve = _hermite(
                 vertex, points[k], tangent / float(np.hypot(*tangent)) * radius, end_tangent * radius
             )
-            ahead[k] = (self.zone_flat[self._flat(curve)] == 0).mean() <= 0.1
+            ahead[k] = (self.zone_flat[self._flat(curve)] == 0).mean() <= _MAX_OUTSIDE_ZONE
         choice = self._loop_entry(vertex, tangent, points, tangents, ahead)
         if choice is None and len(points) == 3:
             choice = self._crossing_exit(vertex, tangent, points, ahead)
@@ -808,7 +809,8 @@ class Searcher:
                 if onward is None or _bend(vertex, unit, point, onward) >= self.params.bridge_bend_max:
                     continue
                 curve = self._flat(_hermite(vertex, point, unit * r, onward * r))
-                if (self.zone_flat[curve] == 0).mean() > 0.1 or (consumed_flat[curve] != 0).sum() < 2:
+                outside = (self.zone_flat[curve] == 0).mean()
+                if outside > _MAX_OUTSIDE_ZONE or (consumed_flat[curve] != 0).sum() < 2:
                     continue
                 return _Candidates(
                     point[None, :],

@@ -35,7 +35,6 @@ per reason and ``log_throttle`` seconds, and the node serves the next one.
 from __future__ import annotations
 
 import sys
-from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -65,7 +64,7 @@ from suture_common.ros import (
     stamp_or_drop,
     to_rclpy,
 )
-from suture_common.stamp_buffer import StampPairBuffer
+from suture_common.stamp_buffer import StampedPairs, StampPairBuffer
 from suture_common.topics import (
     GRASP_POSE,
     LEFT_CAMERA_INFO,
@@ -138,8 +137,7 @@ class ReconstructionNode(Node):
         )
         self.use_images = bool(self.get_parameter("use_images").value)
         image_capacity = int(self.get_parameter("image_buffer_size").value)
-        self._image_pairer: StampPairBuffer[Image] = StampPairBuffer(image_capacity)  # ValueError below 1
-        self._images: OrderedDict[int, tuple[Image, Image]] = OrderedDict()
+        self._images: StampedPairs[Image] = StampedPairs(image_capacity)  # ValueError below 1
         self._camera_info: dict[str, CameraInfo] = {}
         self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
         self._warnings = ThrottledWarnings(self.get_logger(), float(self.get_parameter("log_throttle").value))
@@ -200,12 +198,7 @@ class ReconstructionNode(Node):
         stamp = stamp_or_drop(message, self._drop, f"{side} image")
         if stamp is None:
             return
-        pair = self._image_pairer.add(side, stamp, message)
-        if pair is not None:
-            self._images.pop(stamp, None)
-            self._images[stamp] = pair
-            while len(self._images) > self._image_pairer.capacity:
-                self._images.popitem(last=False)
+        self._images.add(side, stamp, message)
 
     def process(self, stamp_ns: int, left: np.ndarray, right: np.ndarray) -> Reconstruction | None:
         """Reconstruct one stereo pair and publish it; returns None (and warns) when it is dropped."""
@@ -228,7 +221,7 @@ class ReconstructionNode(Node):
 
     def _images_of(self, stamp_ns: int, camera: StereoCamera) -> tuple[np.ndarray, np.ndarray] | None:
         """The stereo images of ``stamp_ns`` as arrays, or None (with a warning) if there are none."""
-        pair = self._images.pop(stamp_ns, None)
+        pair = self._images.take(stamp_ns)
         if pair is None:
             self._image_warnings.warn(
                 "no_images",
