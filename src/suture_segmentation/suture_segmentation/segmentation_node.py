@@ -107,7 +107,6 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             f"input_width and input_height must both be 0 (the image's own size) or both positive, "
             f"got {width} and {height}"
         )
-    low_threshold = float(values["low_threshold"])
     threads = int(values["threads"])
     if threads < 0:
         raise ValueError(f"threads must be >= 0 (0: the runtime's default), got {threads}")
@@ -120,7 +119,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             threshold=float(values["threshold"]),
             input_size=input_size,
             threads=threads or None,
-            low_threshold=low_threshold or None,
+            low_threshold=float(values["low_threshold"]) or None,  # 0: no low masks
         )
     except WeightsError as exc:
         hint = "" if weights else " (the shipped M-ToSOT; set the parameter weights to a .pt or .onnx file)"
