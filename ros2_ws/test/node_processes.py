@@ -68,11 +68,6 @@ def use_graph_transport_profile() -> None:
 use_graph_transport_profile()
 
 
-def graph_test_domain_id() -> int:
-    """The DDS domain of this test process (30..49), so parallel test runs do not hear each other."""
-    return 30 + os.getpid() % 20
-
-
 def bin_dir() -> Path:
     """Folder of the installed console scripts: the running interpreter's environment, else .venv/bin."""
     candidate = Path(sys.prefix) / "bin"

@@ -28,13 +28,12 @@ from suture_common.bag_io import read_messages
 REPO = Path(__file__).resolve().parents[2]
 LAUNCH = REPO / "ros2_ws" / "launch.sh"
 SAMPLE = REPO / "bags" / "sample"
-DOMAIN_ID = 60 + os.getpid() % 20
 MAX_FRAME_ERROR_MM = 5.0
 MAX_MEDIAN_ERROR_MM = 2.0
 
 
-def _env() -> dict[str, str]:
-    return {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN_ID), "PYTHONUNBUFFERED": "1"}
+def _env(domain_id: int) -> dict[str, str]:
+    return {**os.environ, "ROS_DOMAIN_ID": str(domain_id), "PYTHONUNBUFFERED": "1"}
 
 
 def _logs(log_dir: Path) -> str:
@@ -42,7 +41,7 @@ def _logs(log_dir: Path) -> str:
 
 
 @pytest.fixture(scope="module")
-def replay(tmp_path_factory) -> dict[str, Path]:
+def replay(tmp_path_factory, ros_domain_id) -> dict[str, Path]:
     """One replay of the bundled bag through the graph, frame by frame, with its report."""
     out = tmp_path_factory.mktemp("graph")
     command = [
@@ -50,7 +49,7 @@ def replay(tmp_path_factory) -> dict[str, Path]:
         "--record", str(out / "outputs"), "--report", str(out / "player.json"),
         "--memory", str(out / "memory.json"), "--log-dir", str(out / "logs"),
     ]  # fmt: skip
-    run = subprocess.run(command, env=_env(), capture_output=True, text=True, timeout=240)
+    run = subprocess.run(command, env=_env(ros_domain_id), capture_output=True, text=True, timeout=240)
     assert run.returncode == 0, f"{run.stdout}\n{run.stderr}\n{_logs(out / 'logs')}"
     return {"out": out, "stdout": run.stdout}
 
@@ -89,7 +88,7 @@ def test_the_graph_publishes_the_grasp_poses_that_suture_eval_computes(replay):
         assert np.linalg.norm(graph - np.array(frame["grasp_position"])) < 1e-4, frame["topology"]
 
 
-def test_ctrl_c_stops_every_node_and_finalises_the_recording(tmp_path):
+def test_ctrl_c_stops_every_node_and_finalises_the_recording(tmp_path, ros_domain_id):
     command = [
         "bash",
         str(LAUNCH),
@@ -99,7 +98,7 @@ def test_ctrl_c_stops_every_node_and_finalises_the_recording(tmp_path):
         str(tmp_path / "logs"),
     ]
     launch = subprocess.Popen(
-        command, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        command, env=_env(ros_domain_id), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
     )
     started: dict[str, int] = {}
     deadline = time.monotonic() + 30

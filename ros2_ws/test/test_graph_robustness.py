@@ -63,7 +63,6 @@ def _load_harness() -> ModuleType:
 
 harness = _load_harness()
 
-DOMAIN_ID = harness.graph_test_domain_id()
 SEGMENTATION, ORDERING, RECONSTRUCTION, EXECUTOR = harness.PIPELINE
 LEFT_FRAME = topics.LEFT_FRAME
 RIGHT_FRAME = topics.RIGHT_FRAME
@@ -960,14 +959,14 @@ class Graph:
 
 
 @pytest.fixture
-def graph(tmp_path: Path) -> Iterator[Graph]:
+def graph(tmp_path: Path, ros_domain_id: int) -> Iterator[Graph]:
     """The four nodes as processes and the test's driver node; all stopped however the test ends."""
     began = time.monotonic()
     # The bursts must reach the node: segmentation_node keeps only the newest image per camera
     # by default (queue_depth 1); the sensor-data depth of 5 queues a whole burst.
     queues = {"segmentation_node": ["-p", "queue_depth:=5"]}
-    with harness.pipeline(tmp_path / "logs", DOMAIN_ID, ros_args=queues) as pipeline:
-        driver = harness.Driver(DOMAIN_ID)
+    with harness.pipeline(tmp_path / "logs", ros_domain_id, ros_args=queues) as pipeline:
+        driver = harness.Driver(ros_domain_id)
         try:
             expected = harness.graph_inputs()
             assert driver.wait_for_graph(expected, START_TIMEOUT_S), (

@@ -18,22 +18,17 @@ messages and parameters; every decision is in the ROS-free core.
 
 from __future__ import annotations
 
-import contextlib
-import signal
 import sys
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
@@ -50,7 +45,7 @@ from grasp_executor.planning import GraspConfig
 from grasp_executor.safety import SafetyGate, SafetyLimits
 from suture_common import topics
 from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
-from suture_common.ros import RELIABLE_QOS, ThrottledWarnings, to_rclpy
+from suture_common.ros import RELIABLE_QOS, ThreadPoolExecutor, ThrottledWarnings, run_node, to_rclpy
 from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
 
 NODE_NAME = "grasp_executor"
@@ -330,41 +325,22 @@ class ExecutorNode(Node):
         self.core.close()
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
-def main(args: list[str] | None = None) -> None:
+def main(args: list[str] | None = None) -> int:
     """``ros2 run grasp_executor executor_node``: spin until Ctrl-C (SIGINT) or SIGTERM.
 
-    rclpy's own signal handlers are off: they would shut ROS down at once, before
-    a running motion could be stopped. Here the interrupt ends the spin loop, the
-    node aborts the run, the backend tells the robot to stop (a dVRK through its
-    topics, which still work), and only then does ROS shut down.
+    The signal ends the spin loop while ROS is still up: the node aborts a running motion, the
+    backend tells the robot to stop (a dVRK through its topics), and only then does ROS shut
+    down (:func:`suture_common.ros.run_node`). Callbacks run on four threads, so a service call
+    that waits for a motion does not block the feedback that ends it.
     """
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    # Both explicitly: a process started in the background by a script inherits SIGINT ignored.
-    signal.signal(signal.SIGINT, _interrupt)
-    signal.signal(signal.SIGTERM, _interrupt)
-    node = None
-    try:
-        executor = MultiThreadedExecutor(num_threads=4)
-        node = ExecutorNode()
-        executor.add_node(node)
-        while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ConfigError as exc:
-        print(f"executor_node: {exc}", file=sys.stderr)
-        sys.exit(1)
-    finally:
-        with contextlib.suppress(KeyboardInterrupt):  # a second Ctrl-C skips the clean-up
-            if node is not None:
-                node.close()
-                node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(
+        ExecutorNode,
+        "executor_node",
+        args,
+        make_executor=lambda: ThreadPoolExecutor(num_threads=4),
+        finish=ExecutorNode.close,
+    )
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

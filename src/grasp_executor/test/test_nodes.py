@@ -51,7 +51,6 @@ from suture_common.messages import ns_from_stamp, path_message, pose_to_arrays
 from suture_common.ros import RELIABLE_QOS, to_rclpy
 from suture_common.topics import GRASP_POSE, PATH
 
-DOMAIN_ID = 120 + os.getpid() % 80
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 CAMERA = "left_camera_optical_frame"
 HAND_EYE = HandEye([0.4, 0.0, 0.5], [math.sqrt(0.5), -math.sqrt(0.5), 0.0, 0.0], CAMERA, "base")
@@ -106,9 +105,10 @@ def wait_until(predicate: Callable[[], bool], timeout: float = TIMEOUT, what: st
 class Ros:
     """One rclpy Context; nodes spin in background threads until the test ends."""
 
-    def __init__(self) -> None:
+    def __init__(self, domain_id: int) -> None:
+        self.domain_id = domain_id
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=DOMAIN_ID)
+        rclpy.init(context=self.context, domain_id=domain_id)
         self._spinning: list[tuple[object, list, threading.Thread]] = []
 
     def spin(self, *nodes, threads: int = 1) -> Callable[[], None]:
@@ -148,8 +148,8 @@ def _stop(executor, nodes, thread) -> None:
 
 
 @pytest.fixture
-def ros() -> Iterator[Ros]:
-    ros = Ros()
+def ros(ros_domain_id: int) -> Iterator[Ros]:
+    ros = Ros(ros_domain_id)
     try:
         yield ros
     finally:
@@ -430,8 +430,8 @@ def _run_main(args: list[str], domain: int) -> subprocess.Popen:
     )
 
 
-def test_main_exits_cleanly_on_ctrl_c_and_with_one_line_on_bad_config():
-    process = _run_main(["-p", "backend:=bogus"], DOMAIN_ID)
+def test_main_exits_cleanly_on_ctrl_c_and_with_one_line_on_bad_config(ros_domain_id):
+    process = _run_main(["-p", "backend:=bogus"], ros_domain_id)
     output, _ = process.communicate(timeout=TIMEOUT)
     assert process.returncode == 1
     assert (
@@ -439,7 +439,7 @@ def test_main_exits_cleanly_on_ctrl_c_and_with_one_line_on_bad_config():
         == "executor_node: parameter backend is 'bogus'; use one of dry_run, dvrk, ur"
     )
 
-    process = _run_main([], DOMAIN_ID)
+    process = _run_main([], ros_domain_id)
     lines = []
     for line in process.stdout:
         lines.append(line)
@@ -460,7 +460,7 @@ def test_ctrl_c_during_a_motion_stops_the_arm_before_ros_shuts_down(ros):
     for parameter in executor_parameters(motion_timeout=30.0):
         value = parameter.value
         arguments += ["-p", f"{parameter.name}:={str(value).lower() if isinstance(value, bool) else value}"]
-    process = _run_main(arguments, DOMAIN_ID)
+    process = _run_main(arguments, ros.domain_id)
     try:
         wait_until(lambda: probe.grasp_pub.get_subscription_count() >= 1, what="executor_node to start")
         probe.publish_grasp()

@@ -10,20 +10,35 @@ is the nodes' one way of reporting dropped input (DESIGN.md, "Bad input").
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import importlib
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import rclpy
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import (
+    Executor,
+    ExternalShutdownException,
+    ShutdownException,
+    SingleThreadedExecutor,
+    TimeoutException,
+)
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.signals import SignalHandlerOptions
 
 from suture_common.messages import TYPESTORE, MessageConversionError, ns_from_stamp
+from suture_common.stop_signals import StopSignals
+
+N = TypeVar("N", bound=Node)
+
+STOP_POLL_S = 0.1
+"""Longest wait of a node's spin loop before it looks at the stop flag again (s)."""
 
 SENSOR_DATA_QOS: QoSProfile = qos_profile_sensor_data
 """Images: best effort, keep last 5, volatile (rclpy's sensor-data profile)."""
@@ -156,40 +171,91 @@ def stamp_or_drop(message: Any, drop: Callable[[str, str], object], what: str) -
         return None
 
 
-def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
-    """The body of a node executable's ``main()`` (what ``ros2 run PKG EXE`` runs).
+class ThreadPoolExecutor(Executor):
+    """rclpy's multi-threaded executor with a shutdown that no callback outlives.
 
-    Initialises rclpy, builds the node, spins it on a single-threaded executor until Ctrl-C
-    or an external shutdown, and cleans up. A ``ValueError`` while building the node (a bad
-    parameter value) is reported as one line on standard error and exit status 1.
-    Returns the exit status.
+    Like ``rclpy.executors.MultiThreadedExecutor``, :meth:`spin_once` hands each ready callback
+    to a pool of ``num_threads`` threads, so a service callback that waits for a robot does not
+    block the subscriptions that end the wait. Its :meth:`shutdown` first lets the callbacks
+    already handed to the pool finish (a service answering "aborted"), up to
+    ``drain_timeout_s``, so none runs against a node or executor that is being destroyed.
     """
-    rclpy.init(args=args)
-    node = None
-    executor = None
-    try:
-        # the executor before the node: once the node has logged that it is up, a Ctrl-C finds
-        # everything built (an interrupt inside the executor's constructor leaves a broken object)
-        executor = SingleThreadedExecutor()
-        node = make_node()
-        executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ValueError as exc:
-        if node is not None:
-            raise
-        print(f"{name}: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        # rclpy's SIGINT handler ends spin() and Python may raise KeyboardInterrupt here too;
-        # a second Ctrl-C skips the clean-up.
-        with contextlib.suppress(KeyboardInterrupt):
-            # the executor first: its SIGINT guard condition must go before the context does,
-            # or its finaliser prints a traceback at exit
+
+    def __init__(self, num_threads: int, *, context: Any = None, drain_timeout_s: float = 5.0) -> None:
+        super().__init__(context=context)
+        self._pool = concurrent.futures.ThreadPoolExecutor(num_threads)
+        self._drain_timeout_s = drain_timeout_s
+        self._running: list[concurrent.futures.Future] = []
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        """Wait up to ``timeout_sec`` for one ready callback and start it on the pool."""
+        try:
+            handler, _, _ = self.wait_for_ready_callbacks(timeout_sec=timeout_sec)
+        except (ShutdownException, TimeoutException, ExternalShutdownException):
+            return
+        self._running.append(self._pool.submit(handler))
+        for future in [future for future in self._running if future.done()]:
+            self._running.remove(future)
+        if handler.done():
+            handler.result()  # a callback's exception is raised here, as rclpy's executors do
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """Let the callbacks handed to the pool finish (bounded), then shut the executor down."""
+        # before rclpy's shutdown, which destroys the guard condition that callbacks still trigger
+        concurrent.futures.wait(self._running, timeout=self._drain_timeout_s)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        return super().shutdown(timeout_sec)
+
+
+def run_node(
+    make_node: Callable[[], N],
+    name: str,
+    args: list[str] | None = None,
+    *,
+    make_executor: Callable[[], Executor] = SingleThreadedExecutor,
+    finished: Callable[[N], bool] | None = None,
+    finish: Callable[[N], None] | None = None,
+    finish_error: Callable[[N, OSError], str] = lambda node, exc: str(exc),
+) -> int:
+    """The body of every node executable's ``main()`` (what ``ros2 run PKG EXE`` runs).
+
+    Turns SIGINT and SIGTERM into a flag (:class:`~suture_common.stop_signals.StopSignals`;
+    rclpy's own handlers are off), initialises rclpy, builds the node, and spins it until a
+    signal, an external shutdown or ``finished(node)``. Then ``finish(node)`` runs while ROS is
+    still up (a recorder finalises its bag, the executor tells the arm to hold), and the
+    executor, the node and the context are shut down in that order. A signal at any moment,
+    during construction included, leaves through this path: no traceback, exit status 0.
+
+    A ``ValueError`` or rclpy ``ParameterException`` while building the node (a bad
+    parameter) and an ``OSError`` from ``finish`` (worded by ``finish_error``) are one line on
+    standard error, ``"{name}: {problem}"``, and exit status 1. ``make_executor`` chooses the
+    executor (single-threaded by default). Returns the exit status.
+    """
+    with StopSignals() as stop:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+        node: N | None = None
+        executor: Executor | None = None
+        try:
+            try:
+                node = make_node()
+            except (ValueError, ParameterException) as exc:
+                print(f"{name}: {exc}", file=sys.stderr)
+                return 1
+            executor = make_executor()
+            executor.add_node(node)
+            with contextlib.suppress(ExternalShutdownException):
+                while stop.received is None and not (finished is not None and finished(node)):
+                    executor.spin_once(timeout_sec=STOP_POLL_S)
+            if finish is not None:
+                try:
+                    finish(node)
+                except OSError as exc:
+                    print(f"{name}: {finish_error(node, exc)}", file=sys.stderr)
+                    return 1
+            return 0
+        finally:
             if executor is not None:
                 executor.shutdown()
             if node is not None:
                 node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+            rclpy.try_shutdown()

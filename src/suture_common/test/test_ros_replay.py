@@ -7,7 +7,6 @@ from the process id, so parallel test processes do not hear each other.
 
 from __future__ import annotations
 
-import os
 from collections import defaultdict
 from collections.abc import Collection
 from dataclasses import dataclass
@@ -83,11 +82,9 @@ class Replayed:
     received: Any
 
 
-def _domain_id() -> int:
-    return os.getpid() % 100 + 100
-
-
-def replay_and_receive(bag_path: Path, topics: Collection[str], timeout_s: float = 10.0) -> list[Replayed]:
+def replay_and_receive(
+    bag_path: Path, topics: Collection[str], domain_id: int, timeout_s: float = 10.0
+) -> list[Replayed]:
     """Publish the bag's messages on ``topics`` from node A and receive them on node B.
 
     Returns one :class:`Replayed` per bag message, in bag order, paired with the
@@ -103,7 +100,7 @@ def replay_and_receive(bag_path: Path, topics: Collection[str], timeout_s: float
         counts[topic] += 1
 
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=_domain_id())
+    rclpy.init(context=context, domain_id=domain_id)
     executor = None
     nodes = []
     try:
@@ -204,22 +201,22 @@ def frames_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_frames_bag(tmp_path_factory.mktemp("replay") / "frames")
 
 
-def test_replay_frames(frames_bag):
-    replayed = replay_and_receive(frames_bag, FRAME_TOPICS)
+def test_replay_frames(frames_bag, ros_domain_id):
+    replayed = replay_and_receive(frames_bag, FRAME_TOPICS, ros_domain_id)
     assert len(replayed) == FRAMES * len(FRAME_TOPICS)
     assert {r.topic for r in replayed} == set(FRAME_TOPICS)
     assert_replay_faithful(replayed)
 
 
-def test_replay_subset_of_topics(frames_bag):
-    replayed = replay_and_receive(frames_bag, ["/stereo/left/image_rect"])
+def test_replay_subset_of_topics(frames_bag, ros_domain_id):
+    replayed = replay_and_receive(frames_bag, ["/stereo/left/image_rect"], ros_domain_id)
     assert [r.topic for r in replayed] == ["/stereo/left/image_rect"] * FRAMES
     assert_replay_faithful(replayed)
 
 
-def test_replay_detects_a_corrupted_message(frames_bag):
+def test_replay_detects_a_corrupted_message(frames_bag, ros_domain_id):
     """The comparison would notice if the transport changed a message."""
-    replayed = replay_and_receive(frames_bag, ["/suture/left/mask"])
+    replayed = replay_and_receive(frames_bag, ["/suture/left/mask"], ros_domain_id)
     replayed[1].received.data[5] ^= 0xFF
     with pytest.raises(AssertionError):
         assert_replay_faithful(replayed)
@@ -283,8 +280,8 @@ def test_throttled_warnings_log_each_reason_once_per_period():
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
 
 
-def test_replay_sample_bag_frames_unchanged():
+def test_replay_sample_bag_frames_unchanged(ros_domain_id):
     """The committed sample bag: every topic of every frame crosses rclpy unchanged."""
-    replayed = replay_and_receive(SAMPLE_BAG, list(bag_summary(SAMPLE_BAG)))
+    replayed = replay_and_receive(SAMPLE_BAG, list(bag_summary(SAMPLE_BAG)), ros_domain_id)
     assert len(replayed) == sum(count for _, count in bag_summary(SAMPLE_BAG).values())
     assert_replay_faithful(replayed)

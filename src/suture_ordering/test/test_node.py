@@ -6,8 +6,6 @@ parallel test processes do not hear each other.
 
 from __future__ import annotations
 
-import os
-
 import cv2
 import numpy as np
 import pytest
@@ -37,10 +35,10 @@ def _scene(disparity: int = 30) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @pytest.fixture
-def ros():
+def ros(ros_domain_id):
     """(context, executor, node under test, helper node, received sequences by topic)."""
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=140 + os.getpid() % 60)
+    rclpy.init(context=context, domain_id=ros_domain_id)
     node = OrderingNode(context=context)
     helper = rclpy.create_node("ordering_test_helper", context=context)
     executor = SingleThreadedExecutor(context=context)

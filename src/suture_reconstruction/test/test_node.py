@@ -34,7 +34,6 @@ from suture_common.messages import (
 from suture_common.ros import RELIABLE_QOS, spin_until, to_rclpy
 from suture_reconstruction.reconstruction_node import PARAMETERS, ReconstructionNode, point_cloud_to_array
 
-DOMAIN_ID = 200 + os.getpid() % 30
 TIMEOUT = 20.0
 
 
@@ -101,9 +100,9 @@ class Harness:
 
 
 @pytest.fixture
-def context() -> Iterator[rclpy.Context]:
+def context(ros_domain_id: int) -> Iterator[rclpy.Context]:
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    rclpy.init(context=context, domain_id=ros_domain_id)
     try:
         yield context
     finally:
@@ -263,8 +262,8 @@ def test_bad_parameters_refuse_to_start(context):
         ReconstructionNode(context=context, parameter_overrides=[Parameter("min_depth", value=0.5)])
 
 
-def test_main_shuts_down_cleanly_on_ctrl_c():
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
+def test_main_shuts_down_cleanly_on_ctrl_c(ros_domain_id):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id))
     process = subprocess.Popen(
         [sys.executable, "-m", "suture_reconstruction.reconstruction_node"],
         env=env,

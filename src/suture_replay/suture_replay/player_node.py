@@ -60,9 +60,9 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class
+from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class, run_node
 from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
-from suture_replay.node_main import declare_parameters, run_until_stopped
+from suture_replay.node_main import declare_parameters
 from suture_replay.replay import (
     IMAGE_TYPES,
     FrameRecord,
@@ -349,7 +349,7 @@ class PlayerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_replay player_node --ros-args -p bag:=BAG``: replay, report, exit status."""
-    return run_until_stopped(
+    return run_node(
         PlayerNode,
         EXECUTABLE,
         args,

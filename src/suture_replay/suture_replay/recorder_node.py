@@ -34,9 +34,9 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from suture_common.bag_io import BagWriter
-from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, message_class
+from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, message_class, run_node
 from suture_common.topics import PIPELINE_OUTPUT_TOPICS
-from suture_replay.node_main import declare_parameters, run_until_stopped
+from suture_replay.node_main import declare_parameters
 from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 
 NODE_NAME = "recorder"
@@ -152,7 +152,7 @@ class RecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run suture_replay recorder_node --ros-args -p output:=BAG``: record until SIGINT/SIGTERM."""
-    return run_until_stopped(
+    return run_node(
         RecorderNode,
         EXECUTABLE,
         args,

@@ -18,19 +18,15 @@ adapters over this module, which holds everything that can be tested without a R
 - :class:`PlayerSettings` and :class:`RecorderSettings` check the nodes' parameters.
 - :class:`FrameRecord`, :func:`latency_stats`, :func:`build_report` and
   :func:`summary_line` turn publish and output times into the player's JSON report.
-- :class:`StopSignals` turns SIGINT and SIGTERM into a flag that a node's main loop
-  polls, so both stop a node cleanly (a bag finalised, a report written).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import signal
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -382,31 +378,3 @@ def write_report(path: str | Path, report: dict[str, Any]) -> None:
 
 
 # --------------------------------------------------------------------------- signals
-
-
-class StopSignals:
-    """SIGINT and SIGTERM set :attr:`received` instead of raising or killing the process.
-
-    A node's main loop spins with a short timeout and checks :attr:`received`, so Ctrl-C
-    and ``kill`` both end it through its normal clean-up. Use as a context manager (the
-    previous handlers are restored on exit); main thread only.
-    """
-
-    SIGNALS: Collection[signal.Signals] = (signal.SIGINT, signal.SIGTERM)
-
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._previous: dict[signal.Signals, Any] = {}
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        self.received = signum
-
-    def __enter__(self) -> StopSignals:
-        for sig in self.SIGNALS:
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-        self._previous.clear()

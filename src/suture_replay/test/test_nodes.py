@@ -1,6 +1,6 @@
 """player_node and recorder_node over rclpy: in-process graphs, and the executables as subprocesses.
 
-Each test uses its own rclpy Context on a DDS domain derived from the process id (the
+Each test uses its own rclpy Context on the module's DDS domain from the root conftest (the
 subprocesses get it through ROS_DOMAIN_ID), so parallel test processes do not hear each
 other. The player replays the repository's bags/sample (10 stereo frames at 10 Hz).
 """
@@ -44,7 +44,6 @@ T0 = 1_700_000_000_000_000_000
 PERIOD = 100_000_000
 SAMPLE_STAMPS = [T0 + k * PERIOD for k in range(10)]
 BIN = Path(sys.executable).parent
-DOMAIN_ID = 10 + os.getpid() % 20
 
 
 def stamp_ns(message) -> int:
@@ -52,10 +51,10 @@ def stamp_ns(message) -> int:
 
 
 @pytest.fixture
-def ros():
+def ros(ros_domain_id):
     """(context, executor, helper node); every node added to the executor is destroyed at the end."""
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    rclpy.init(context=context, domain_id=ros_domain_id)
     executor = SingleThreadedExecutor(context=context)
     helper = rclpy.create_node("replay_test_helper", context=context)
     executor.add_node(helper)
@@ -347,8 +346,9 @@ def test_recorder_bad_parameters(ros, tmp_path, parameters, match):
 # --------------------------------------------------------------------------- executables
 
 
-def run_env() -> dict[str, str]:
-    return {**os.environ, "ROS_DOMAIN_ID": str(DOMAIN_ID)}
+@pytest.fixture
+def run_env(ros_domain_id) -> dict[str, str]:
+    return {**os.environ, "ROS_DOMAIN_ID": str(ros_domain_id)}
 
 
 @pytest.mark.parametrize(
@@ -366,9 +366,9 @@ def run_env() -> dict[str, str]:
         ),
     ],
 )
-def test_executables_report_bad_parameters_in_one_line(command, message):
+def test_executables_report_bad_parameters_in_one_line(command, message, run_env):
     result = subprocess.run(
-        [str(BIN / command[0]), *command[1:]], env=run_env(), capture_output=True, text=True, timeout=30
+        [str(BIN / command[0]), *command[1:]], env=run_env, capture_output=True, text=True, timeout=30
     )
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
@@ -377,7 +377,7 @@ def test_executables_report_bad_parameters_in_one_line(command, message):
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_recorder_executable_finalises_the_bag_on_signal(ros, tmp_path, signum):
+def test_recorder_executable_finalises_the_bag_on_signal(ros, tmp_path, signum, run_env):
     _context, executor, helper = ros
     output = tmp_path / "recording"
     process = subprocess.Popen(
@@ -389,7 +389,7 @@ def test_recorder_executable_finalises_the_bag_on_signal(ros, tmp_path, signum):
             "-p",
             f"topics:=[{topics.EXECUTOR_STATE}]",
         ],
-        env=run_env(),
+        env=run_env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -411,7 +411,7 @@ def test_recorder_executable_finalises_the_bag_on_signal(ros, tmp_path, signum):
     assert [m.message.data for m in read_messages(output)] == ["idle", "planned", "done"]
 
 
-def test_player_executable_stops_on_sigterm_and_writes_the_report(ros, tmp_path):
+def test_player_executable_stops_on_sigterm_and_writes_the_report(ros, tmp_path, run_env):
     _context, executor, helper = ros
     left: list[int] = []
     helper.create_subscription(Image, topics.LEFT_IMAGE, lambda m: left.append(stamp_ns(m)), RELIABLE_QOS)
@@ -432,7 +432,7 @@ def test_player_executable_stops_on_sigterm_and_writes_the_report(ros, tmp_path)
             "-p",
             f"topics:=[{topics.LEFT_IMAGE}]",
         ],
-        env=run_env(),
+        env=run_env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

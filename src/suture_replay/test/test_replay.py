@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +25,6 @@ from suture_replay.replay import (
     FrameRecord,
     PlayerSettings,
     RecorderSettings,
-    StopSignals,
     build_report,
     header_stamp_ns,
     latency_stats,
@@ -306,16 +303,3 @@ def test_report_without_outputs():
     assert build_report([], "recorded", 1.0)["frames"] == 0
     with pytest.raises(ValueError, match="mode"):
         build_report([], "fast", 1.0)
-
-
-# --------------------------------------------------------------------------- signals
-
-
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_stop_signals_set_a_flag_and_restore_handlers(signum):
-    before = signal.getsignal(signum)
-    with StopSignals() as stop:
-        assert stop.received is None
-        os.kill(os.getpid(), signum)  # handled at the next bytecode: no KeyboardInterrupt, no exit
-        assert stop.received == signum
-    assert signal.getsignal(signum) is before

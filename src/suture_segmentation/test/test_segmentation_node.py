@@ -11,7 +11,6 @@ other tests use a small random checkpoint written to a temporary folder.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -33,7 +32,6 @@ from suture_segmentation.checkpoint import save_checkpoint
 from suture_segmentation.model import SutureUNet
 from suture_segmentation.segmentation_node import PARAMETERS, SegmentationNode, main
 
-DOMAIN_ID = 40 + os.getpid() % 60
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
 MIN_IOU = 0.5
 """Lowest IoU of a predicted mask with the ground truth, per frame and view, on bags/sample."""
@@ -144,9 +142,9 @@ class Harness:
 
 
 @pytest.fixture
-def context() -> Iterator[rclpy.Context]:
+def context(ros_domain_id: int) -> Iterator[rclpy.Context]:
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    rclpy.init(context=context, domain_id=ros_domain_id)
     try:
         yield context
     finally:
@@ -255,11 +253,11 @@ def test_bad_input_is_dropped_and_the_node_keeps_serving(context, random_weights
 
 
 @pytest.mark.parametrize("problem", ["missing", "corrupt"])
-def test_unloadable_weights_stop_the_node_with_one_line(problem, tmp_path, monkeypatch, capfd):
+def test_unloadable_weights_stop_the_node_with_one_line(problem, tmp_path, monkeypatch, capfd, ros_domain_id):
     weights = tmp_path / "weights.pt"
     if problem == "corrupt":
         weights.write_bytes(b"\x00garbage, not a checkpoint\xff" * 100)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(DOMAIN_ID))
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
     status = main(["segmentation_node", "--ros-args", "-p", f"weights:={weights}"])
     lines = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
     assert status == 1
