@@ -26,7 +26,7 @@ repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 params="$repo/ros2_ws/params/pipeline.yaml"
 bag="" rate="" record="" report="" loops="" graph_paced=false memory_file="" dry_run=false
 log_dir="$repo/out/launch/$(date +%Y%m%d-%H%M%S)"
-ros_args=()
+ros_args=() without=()
 
 usage() {
   cat <<EOF
@@ -40,6 +40,7 @@ usage: bash ros2_ws/launch.sh [options] [-- ROS_ARGS...]
   --report FILE        the player's per-frame latency report (JSON)
   --memory FILE        each node's peak resident memory at the end (JSON, MiB)
   --log-dir DIR        node logs (default out/launch/<date-time>)
+  --without NODE       do not start NODE here (e.g. segmentation_node on another host); repeatable
   --dry-run            print the network settings and each node's command, start nothing
   ROS_ARGS             extra --ros-args for every node, e.g. -- -p use_sim_time:=false
 EOF
@@ -56,6 +57,7 @@ while [ $# -gt 0 ]; do
     --report) report=$(realpath -m "$2"); shift 2 ;;
     --memory) memory_file=$(realpath -m "$2"); shift 2 ;;
     --log-dir) log_dir=$(realpath -m "$2"); shift 2 ;;
+    --without) without+=("$2"); shift 2 ;;
     --dry-run) dry_run=true; shift ;;
     -h|--help) usage; exit 0 ;;
     --) shift; ros_args=("$@"); break ;;
@@ -63,6 +65,13 @@ while [ $# -gt 0 ]; do
   esac
 done
 [ -f "$params" ] || { echo "launch: no parameter file $params" >&2; exit 2; }
+for skipped in ${without[@]+"${without[@]}"}; do
+  case "$skipped" in
+    segmentation_node|ordering_node|reconstruction_node|executor_node) ;;
+    *) echo "launch: --without $skipped: not one of segmentation_node, ordering_node," \
+         "reconstruction_node, executor_node" >&2; exit 2 ;;
+  esac
+done
 [ -z "$bag" ] || [ -e "$bag" ] || { echo "launch: no bag at $bag" >&2; exit 2; }
 [ -z "$record" ] || [ ! -e "$record" ] || { echo "launch: $record exists; choose a new --record" >&2; exit 2; }
 $dry_run || mkdir -p "$log_dir"
@@ -94,7 +103,10 @@ executable() {  # PKG EXE -> the command words, one per line
 names=() pids=()
 start() {  # NAME PKG EXE [extra ros args...]
   local name=$1 pkg=$2 exe=$3; shift 3
-  local command
+  local command skipped
+  for skipped in ${without[@]+"${without[@]}"}; do
+    if [ "$skipped" = "$name" ]; then echo "launch: not starting $name here (--without)"; return; fi
+  done
   mapfile -t command < <(executable "$pkg" "$exe")
   [ ${#command[@]} -gt 0 ] || exit 1
   if $dry_run; then

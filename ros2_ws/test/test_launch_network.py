@@ -79,3 +79,21 @@ def test_the_printed_settings_are_what_the_nodes_inherit(tmp_path: Path) -> None
     env = {k: v for k, v in os.environ.items() if k not in NETWORK_VARIABLES}
     child = subprocess.run(["bash", "-c", script], env=env, capture_output=True, text=True, timeout=10)
     assert child.stdout.strip() == "LOCALHOST"
+
+
+def test_a_node_left_to_another_host_is_not_started(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in NETWORK_VARIABLES}
+    command = ["bash", str(LAUNCH), "--dry-run", "--without", "segmentation_node"]
+    run = subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    started = re.findall(r"^launch: would start (\w+):", run.stdout, re.MULTILINE)
+    assert started == ["ordering_node", "reconstruction_node", "executor_node"]
+    assert "not starting segmentation_node here" in run.stdout
+
+
+def test_an_unknown_node_to_leave_out_is_refused() -> None:
+    run = subprocess.run(
+        ["bash", str(LAUNCH), "--dry-run", "--without", "segmentation"], capture_output=True, text=True
+    )
+    assert run.returncode == 2
+    assert run.stderr.strip().startswith("launch: --without segmentation: not one of")
