@@ -9,7 +9,8 @@
 #
 # Discovery stays on this host: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless you set the
 # variable yourself (SUBNET, SYSTEM_DEFAULT, OFF). Hosts named in ROS_STATIC_PEERS are still
-# reached with LOCALHOST; docs/security.md shows how to put a node on another host.
+# reached with LOCALHOST; docs/security.md shows how to put a node on another host (--without).
+# With ROS_SECURITY_ENABLE=true each node runs in the SROS2 enclave /suture/<name>.
 #
 # Nodes: segmentation_node, ordering_node, reconstruction_node, executor_node (+ player_node with
 # --bag, recorder_node with --record), each started as `ros2 run PKG EXE --ros-args --params-file
@@ -109,6 +110,8 @@ start() {  # NAME PKG EXE [extra ros args...]
   done
   mapfile -t command < <(executable "$pkg" "$exe")
   [ ${#command[@]} -gt 0 ] || exit 1
+  # SROS2: each node in its own enclave of ros2_ws/security/policy.xml (docs/security.md).
+  [ "${ROS_SECURITY_ENABLE:-}" != true ] || set -- --enclave "/suture/$name" "$@"
   if $dry_run; then
     printf 'launch: would start %s:' "$name"
     printf ' %q' "${command[@]}" --ros-args --params-file "$params" "$@" ${ros_args[@]+"${ros_args[@]}"}

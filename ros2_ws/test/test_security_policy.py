@@ -6,11 +6,15 @@ source file: the second argument of every ``create_publisher``, ``create_subscri
 ``create_service`` call, resolved through the module's constants and
 ``suture_common.topics``, so a topic added to a node without its permission fails here.
 The recorder's and player's topics are parameters; their defaults come from suture_common.topics.
+Last, ``launch.sh --dry-run`` with ``ROS_SECURITY_ENABLE=true`` must give each node its enclave.
 """
 
 from __future__ import annotations
 
 import ast
+import os
+import re
+import subprocess
 import xml.etree.ElementTree as ElementTree
 from collections import defaultdict
 from pathlib import Path
@@ -202,3 +206,26 @@ def test_every_topic_a_node_subscribes_has_an_allowed_publisher() -> None:
     for path, rules in enclaves.items():
         missing = rules["subscribe"] - published - {"/clock"}  # /clock: a simulator's, none here
         assert not missing, f"{path} subscribes {missing}, which no enclave may publish"
+
+
+def test_launch_puts_each_node_in_its_enclave_when_security_is_enabled(tmp_path: Path) -> None:
+    """``ROS_SECURITY_ENABLE=true bash ros2_ws/launch.sh``: every node gets an enclave of the policy."""
+    env = {**os.environ, "ROS_SECURITY_ENABLE": "true"}
+    command = ["bash", str(REPO / "ros2_ws/launch.sh"), "--dry-run", "--bag", str(REPO / "bags/sample")]
+    command += ["--record", str(tmp_path / "outputs")]
+    run = subprocess.run(command, env=env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    started = dict(re.findall(r"^launch: would start (\w+):.* --enclave (\S+)", run.stdout, re.MULTILINE))
+    assert started == {
+        "recorder": "/suture/recorder",
+        "segmentation_node": "/suture/segmentation_node",
+        "ordering_node": "/suture/ordering_node",
+        "reconstruction_node": "/suture/reconstruction_node",
+        "executor_node": "/suture/executor_node",
+        "player": "/suture/player",
+    }
+    assert set(started.values()) <= set(load_policy())
+    plain = subprocess.run(
+        command[:3], env={**os.environ, "ROS_SECURITY_ENABLE": ""}, capture_output=True, text=True
+    )
+    assert "--enclave" not in plain.stdout
