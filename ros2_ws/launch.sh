@@ -1,9 +1,16 @@
 #!/usr/bin/env bash
-# Start the node graph of DESIGN.md with one parameter file, optionally replay a bag through it
-# and record its outputs; stop everything cleanly on Ctrl-C, on SIGTERM, or when the replay ends.
+# Start the node graph of docs/interfaces.md with one parameter file, optionally replay a bag
+# through it and record its outputs; stop everything cleanly on Ctrl-C, on SIGTERM, or when the
+# replay ends.
 #
 #   bash ros2_ws/launch.sh                                  # the four nodes, until Ctrl-C
 #   bash ros2_ws/launch.sh --bag bags/sample --as-fast-as-graph --record out/run/outputs
+#   bash ros2_ws/launch.sh --dry-run                        # print settings and commands only
+#
+# Discovery stays on this host: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST unless you set the
+# variable yourself (SUBNET, SYSTEM_DEFAULT, OFF). Hosts named in ROS_STATIC_PEERS are still
+# reached with LOCALHOST; docs/security.md shows how to put a node on another host (--without).
+# With ROS_SECURITY_ENABLE=true each node runs in the SROS2 enclave /suture/<name>.
 #
 # Nodes: segmentation_node, ordering_node, reconstruction_node, executor_node (+ player_node with
 # --bag, recorder_node with --record), each started as `ros2 run PKG EXE --ros-args --params-file
@@ -18,9 +25,9 @@ set -m
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 params="$repo/ros2_ws/params/pipeline.yaml"
-bag="" rate="" record="" report="" loops="" graph_paced=false memory_file=""
+bag="" rate="" record="" report="" loops="" graph_paced=false memory_file="" dry_run=false
 log_dir="$repo/out/launch/$(date +%Y%m%d-%H%M%S)"
-ros_args=()
+ros_args=() without=()
 
 usage() {
   cat <<EOF
@@ -34,6 +41,8 @@ usage: bash ros2_ws/launch.sh [options] [-- ROS_ARGS...]
   --report FILE        the player's per-frame latency report (JSON)
   --memory FILE        each node's peak resident memory at the end (JSON, MiB)
   --log-dir DIR        node logs (default out/launch/<date-time>)
+  --without NODE       do not start NODE here (e.g. segmentation_node on another host); repeatable
+  --dry-run            print the network settings and each node's command, start nothing
   ROS_ARGS             extra --ros-args for every node, e.g. -- -p use_sim_time:=false
 EOF
 }
@@ -49,17 +58,31 @@ while [ $# -gt 0 ]; do
     --report) report=$(realpath -m "$2"); shift 2 ;;
     --memory) memory_file=$(realpath -m "$2"); shift 2 ;;
     --log-dir) log_dir=$(realpath -m "$2"); shift 2 ;;
+    --without) without+=("$2"); shift 2 ;;
+    --dry-run) dry_run=true; shift ;;
     -h|--help) usage; exit 0 ;;
     --) shift; ros_args=("$@"); break ;;
     *) echo "launch: unknown option $1" >&2; usage >&2; exit 2 ;;
   esac
 done
 [ -f "$params" ] || { echo "launch: no parameter file $params" >&2; exit 2; }
+for skipped in ${without[@]+"${without[@]}"}; do
+  case "$skipped" in
+    segmentation_node|ordering_node|reconstruction_node|executor_node) ;;
+    *) echo "launch: --without $skipped: not one of segmentation_node, ordering_node," \
+         "reconstruction_node, executor_node" >&2; exit 2 ;;
+  esac
+done
 [ -z "$bag" ] || [ -e "$bag" ] || { echo "launch: no bag at $bag" >&2; exit 2; }
 [ -z "$record" ] || [ ! -e "$record" ] || { echo "launch: $record exists; choose a new --record" >&2; exit 2; }
-mkdir -p "$log_dir"
+$dry_run || mkdir -p "$log_dir"
 # Large frames over shared memory (see the file's comment); a profile of your own wins.
 export FASTRTPS_DEFAULT_PROFILES_FILE=${FASTRTPS_DEFAULT_PROFILES_FILE:-$repo/ros2_ws/params/fastdds.xml}
+# Nobody else on the network sees or commands the graph unless you open it (docs/security.md):
+# a range you set yourself wins; static peers you name are reached at LOCALHOST too.
+export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
+echo "launch: ROS_AUTOMATIC_DISCOVERY_RANGE=$ROS_AUTOMATIC_DISCOVERY_RANGE" \
+  "ROS_STATIC_PEERS=${ROS_STATIC_PEERS:-} ROS_DOMAIN_ID=${ROS_DOMAIN_ID:-0}"
 
 # How a node executable is found: `ros2 run`, the set-up's .venv, or a sourced colcon install.
 executable() {  # PKG EXE -> the command words, one per line
@@ -81,9 +104,20 @@ executable() {  # PKG EXE -> the command words, one per line
 names=() pids=()
 start() {  # NAME PKG EXE [extra ros args...]
   local name=$1 pkg=$2 exe=$3; shift 3
-  local command
+  local command skipped
+  for skipped in ${without[@]+"${without[@]}"}; do
+    if [ "$skipped" = "$name" ]; then echo "launch: not starting $name here (--without)"; return; fi
+  done
   mapfile -t command < <(executable "$pkg" "$exe")
   [ ${#command[@]} -gt 0 ] || exit 1
+  # SROS2: each node in its own enclave of ros2_ws/security/policy.xml (docs/security.md).
+  [ "${ROS_SECURITY_ENABLE:-}" != true ] || set -- --enclave "/suture/$name" "$@"
+  if $dry_run; then
+    printf 'launch: would start %s:' "$name"
+    printf ' %q' "${command[@]}" --ros-args --params-file "$params" "$@" ${ros_args[@]+"${ros_args[@]}"}
+    echo
+    return
+  fi
   "${command[@]}" --ros-args --params-file "$params" "$@" ${ros_args[@]+"${ros_args[@]}"} \
     >"$log_dir/$name.log" 2>&1 &
   names+=("$name"); pids+=($!)
@@ -142,9 +176,11 @@ stop_all() {  # SIGINT once to every node (recorder last, so it keeps the final 
   done
   echo "launch: stopped (logs in $log_dir)"
 }
-trap 'stop_all; exit 130' INT
-trap 'stop_all; exit 143' TERM
-trap 'stop_all' EXIT
+if ! $dry_run; then
+  trap 'stop_all; exit 130' INT
+  trap 'stop_all; exit 143' TERM
+  trap 'stop_all' EXIT
+fi
 
 [ -z "$record" ] || start recorder suture_replay recorder_node -p "output:=$record"
 start segmentation_node suture_segmentation segmentation_node
@@ -157,15 +193,18 @@ if [ -n "$bag" ]; then
   # Before the first frame: every node constructed (its first log line; the recorder and the
   # executor's target pose must hear frame 0 too) and the recorder matched a publisher on every
   # topic (what is written before is not recorded); 30 s and 15 s at most.
-  poll 150 every_node_logged || true
-  [ -z "$record" ] || poll 75 grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" || true
+  if ! $dry_run; then
+    poll 150 every_node_logged || true
+    [ -z "$record" ] || poll 75 grep -q "every recorded topic has a publisher" "$log_dir/recorder.log" || true
+  fi
   player_args=(-p "bag:=$bag" -p "wait_for_output:=$graph_paced")
   [ -z "$rate" ] || player_args+=(-p "rate:=$rate")
   [ -z "$loops" ] || player_args+=(-p "loops:=$loops")
   [ -z "$report" ] || player_args+=(-p "report:=$report")
   start player suture_replay player_node "${player_args[@]}"
-  player_pid=${pids[-1]}
+  $dry_run || player_pid=${pids[-1]}
 fi
+$dry_run && exit 0
 
 # Watch: report nodes that exit early; with a replay, stop when the player is done.
 reported=()
