@@ -44,7 +44,7 @@ from suture_ordering.cleaning import CleanMask
 from suture_ordering.context import SearchContext
 from suture_ordering.ending import append_tail, end_status
 from suture_ordering.loops import across_own_path
-from suture_ordering.nodes import MaskReader
+from suture_ordering.nodes import Candidates, MaskReader
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.path import Branch, advance
 from suture_ordering.steps import next_candidates
@@ -124,25 +124,10 @@ class Searcher:
                     forks += len(chosen) - 1
                     for j in chosen[1:]:
                         other = branch.fork(branch.rows[choice == j])
-                        advance(
-                            context,
-                            other,
-                            found.position[j],
-                            float(found.width[j]),
-                            found.continuation[j],
-                            found.bridge[j],
-                        )
+                        _step_to(context, other, found, j)
                         pending.append(other)
                     branch.rows = branch.rows[choice == chosen[0]]
-                j = int(chosen[0])
-                advance(
-                    context,
-                    branch,
-                    found.position[j],
-                    float(found.width[j]),
-                    found.continuation[j],
-                    found.bridge[j],
-                )
+                _step_to(context, branch, found, int(chosen[0]))
             finished.append(branch)
         best = max(finished, key=lambda b: (b.length, 0 in b.rows, -int(b.rows.min())))
         return self._result(best, forks)
@@ -168,3 +153,8 @@ class Searcher:
             bridges=branch.bridges,
             forks=forks,
         )
+
+
+def _step_to(context: SearchContext, branch: Branch, found: Candidates, j: int) -> None:
+    """Advance ``branch`` to candidate ``j`` of ``found``."""
+    advance(context, branch, found.position[j], float(found.width[j]), found.continuation[j], found.bridge[j])
