@@ -232,10 +232,13 @@ def reconstruct(
         Fewer than ``params.min_points`` points in a view, or too few 3D vertices.
     NoStereoOverlapError
         Fewer than ``params.min_pairs`` left samples pair with the right sequence.
+    ThreadTooShortError
+        The reconstructed thread is shorter than ``params.grasp_arc_length``.
     ImagePairError
         ``images`` that do not fit the camera.
     ReconstructionError
-        Algorithm 1 found no path (the base class of all the above; a ``ValueError``).
+        Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
+        point (the base class of all the above; a ``ValueError``).
     suture_common.camera.CameraModelError
         ``camera`` is not a StereoCamera.
 
@@ -276,19 +279,19 @@ def reconstruct(
             images, left.points, left.observed, disparity, pairs, params.disparity, params.photometric
         )
     timer.lap("photometric")
-    found = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
-    rejected["unsupported"] = found.unsupported
+    triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
+    rejected["unsupported"] = triangulated.unsupported
     timer.lap("triangulation")
-    vertices, shape = _shape(found, params)
+    vertices, shape = _shape(triangulated, params)
     timer.lap("optimisation")
     curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
     timer.lap("curve_and_grasp")
     return Reconstruction(
-        points=found.points,
-        left_uv=found.left_uv,
-        disparity=found.disparity,
+        points=triangulated.points,
+        left_uv=triangulated.left_uv,
+        disparity=triangulated.disparity,
         vertices=vertices,
         shape=shape,
         curve=curve,
@@ -362,9 +365,9 @@ def _stereo_disparity(
     return pairs, disparity, rejected
 
 
-def _shape(found: Triangulated, params: ReconstructionParams) -> tuple[np.ndarray, ShapePath]:
+def _shape(triangulated: Triangulated, params: ReconstructionParams) -> tuple[np.ndarray, ShapePath]:
     """The vertices every ``vertex_step`` along each unbroken run, and Algorithm 1's path."""
-    vertices = resample_runs(found.points, found.index, params.vertex_step)
+    vertices = resample_runs(triangulated.points, triangulated.index, params.vertex_step)
     if len(vertices) < 2:
         raise TooFewPointsError(f"only {len(vertices)} 3D vertex after resampling; the thread is too short")
     try:
