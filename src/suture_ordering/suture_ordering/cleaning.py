@@ -12,7 +12,7 @@ pass (outer contours and holes, about 0.1 ms for a 640x480 mask):
   directions are removed: specks that are no thread.
 
 Spurs need no pruning here: the search never walks the skeleton (it reads
-cross-sections of the mask on circles, see :mod:`suture_ordering.search`); the
+cross-sections of the mask on circles, see :mod:`suture_ordering.nodes`); the
 skeleton is used only near the cut tip (:mod:`suture_ordering.tip`).
 """
 

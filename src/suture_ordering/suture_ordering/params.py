@@ -21,7 +21,8 @@ grid over R1 x R2 x R3         ``grid_size`` per range      3 (27 parameter sets
 τ_V = 2π/3                     ``tau_v``                    2.094 rad
 ============================  =========================  ==========================
 
-The choices where the paper is silent are documented in :mod:`suture_ordering.search`.
+The choices where the paper is silent are documented in the modules that
+:mod:`suture_ordering.search` lists.
 """
 
 from __future__ import annotations
@@ -93,8 +94,8 @@ class OrderingParams:
     #: Mask components whose bounding box is smaller than this in both directions are removed (px).
     min_blob_extent_px: float = 5.0
     #: Right-view tip: at most this many rows from the left tip's row (px). Predicted masks often
-    #: lose a faint tip's last pixels in one view only: at 3 px, 8 of 400 fresh frames found no
-    #: right tip; none of them at 5-6 px.
+    #: lose a faint tip's last pixels in one view only, which moves that view's free end by a few
+    #: rows; a tolerance of 3 px misses such right tips.
     row_tolerance_px: float = 6.0
     #: Right-view tip: depth range that bounds the disparity search (m).
     min_depth_m: float = 0.05

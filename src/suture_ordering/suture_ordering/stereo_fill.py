@@ -21,22 +21,18 @@ A search that stops at a gap often ends in a short hook (its last steps bent by
 the mask's ragged end): up to ``HOOK_SAMPLES`` end points may be given up to
 find where the sequence leaves the other view's path (measuring the disparity
 before them if the hook's rows bias it), and that path must run on the same way
-(not back along a loop's other pass). On six fresh sets (1,400 frames) this
-turned three refusals into grasps within 5 mm and changed nothing else.
+(not back along a loop's other pass).
 It does follow a gap the other view bridged: in most gaps of predicted masks
 both views lose the thread at the same place and only one view's search
-bridges it. On four fresh sets of 900 frames with the shipped int8 M-oST this
-took 846 grasps within 5 mm against 836 without it, and turned two refusals
-into grasps 7.8 and 8.7 mm along the thread from the true point, where the other
-view had bridged to the wrong strand (see the README's results).
+bridges it. Where the other view bridged to the wrong strand, the result follows
+that strand too.
 
 :func:`splice_skipped_stretch` mends the other way one view's search can go
 wrong where the other's did not: at its own crossing a thread runs straight on
 into its loop, and where the mask has a gap near the crossing a search can take
 the other arm and skip the loop. Both sequences then end at the same place, one
 much shorter; the loop is put back from the other view where this view's mask
-shows it. On the same 900 frames that put three more grasps within 5 mm (849),
-one of them a grasp 26 mm off before.
+shows it.
 
 Shapes and units: sequences (N, 2) float64 (u, v) in pixels from the cut tip;
 masks (H, W), nonzero = thread; disparity d = u_left - u_right > 0.

@@ -14,9 +14,10 @@ from hypothesis import strategies as st
 from suture_ordering import OrderingParams, order_sequence
 from suture_ordering.cleaning import clean_mask
 from suture_ordering.core import _prepare
+from suture_ordering.nodes import Candidates
 from suture_ordering.ordering_node import _parameter_defaults, params_from_values
 from suture_ordering.params import ScaledParams
-from suture_ordering.search import _Candidates, parameter_grid
+from suture_ordering.tuning import parameter_grid
 
 W, H = 640, 480
 
@@ -40,8 +41,8 @@ def test_tuning_grid_spans_the_paper_ranges_with_the_centre_first():
 
 
 def test_cost_is_eq5_and_orders_out_of_zone_then_distance_then_turn():
-    searcher = _prepare(_line_mask((100, 100), (500, 100)), OrderingParams(), None).searcher
-    nodes = _Candidates(
+    tuning = _prepare(_line_mask((100, 100), (500, 100)), OrderingParams(), None).searcher.context.tuning
+    nodes = Candidates(
         position=np.zeros((4, 2)),
         radius=np.array([8.0, 8.0, 12.0, 8.0]),
         out=np.array([0, 0, 0, 3]),
@@ -50,9 +51,9 @@ def test_cost_is_eq5_and_orders_out_of_zone_then_distance_then_turn():
         continuation=[None] * 4,
         bridge=np.zeros(4, bool),
     )
-    rows = np.arange(len(searcher.grid))
-    cost = searcher._cost(rows, nodes)
-    eps1, eps2, eps3 = searcher.grid.T
+    rows = np.arange(len(tuning.grid))
+    cost = tuning.cost(rows, nodes)
+    eps1, eps2, eps3 = tuning.grid.T
     expected = np.log(eps1[:, None] * nodes.out + 0.01) + eps2[:, None] * nodes.radius * np.exp(
         eps3[:, None] * np.sin(nodes.delta / 2)
     )
@@ -64,15 +65,15 @@ def test_cost_is_eq5_and_orders_out_of_zone_then_distance_then_turn():
 
 def test_out_of_zone_count_is_the_gap_length_in_pixels():
     mask = _line_mask((100, 240), (500, 240), gap=((300, 200), (319, 300)))  # 20 px gap
-    searcher = _prepare(mask, OrderingParams(zone_margin_px=0), None).searcher
-    out = searcher._out_of_zone(np.array([280.0, 240.0]), np.array([[340.0, 240.0], [280.0, 200.0]]), 60)
+    reader = _prepare(mask, OrderingParams(zone_margin_px=0), None).searcher.context.reader
+    out = reader.out_of_zone(np.array([280.0, 240.0]), np.array([[340.0, 240.0], [280.0, 200.0]]), 60)
     assert out[0] == pytest.approx(20, abs=1)
     assert out[1] >= 35  # a chord off the thread is out of zone for most of its length
     # With the default 1 px zone margin the gap looks 2 px shorter.
-    searcher = _prepare(mask, OrderingParams(), None).searcher
-    assert searcher._out_of_zone(np.array([280.0, 240.0]), np.array([[340.0, 240.0]]), 60)[
-        0
-    ] == pytest.approx(18, abs=1)
+    reader = _prepare(mask, OrderingParams(), None).searcher.context.reader
+    assert reader.out_of_zone(np.array([280.0, 240.0]), np.array([[340.0, 240.0]]), 60)[0] == pytest.approx(
+        18, abs=1
+    )
 
 
 def test_tau_o_is_a_pixel_length_proportional_to_the_roi():

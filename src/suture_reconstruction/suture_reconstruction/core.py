@@ -6,7 +6,8 @@ both call. Steps (paper Section II.B end and II.C):
 1. validate the sequences ((N, 2) pixels from the cut tip, finite, at least
    ``min_points``); smooth each lightly (Savitzky-Golay, ``smoothing_window``
    samples) and resample it every 1 px of its own arc length; a step longer
-   than ``max_jump_px`` is a jump over a hidden stretch, not observed thread;
+   than ``max_jump_px`` is a jump over a hidden stretch, not observed thread
+   (:mod:`suture_reconstruction.sequences`);
 2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
    the disparity limits of the working depth range, and disparity
    regularisation along the thread (:mod:`suture_reconstruction.pairing`);
@@ -17,14 +18,13 @@ both call. Steps (paper Section II.B end and II.C):
    The depth must follow precise pairs closely: where the thread is lifted
    over the other strand 1 px of disparity is about 3 mm of depth, and a
    flattened lift is arc length missing before the grasp point, which moves
-   the grasp along the thread by as much (the grasp errors of 3-4 mm on the
-   ground-truth sequences of issue 5 had that cause, not a local error).
+   the grasp along the thread by as much.
    It must not follow noise either: sequences traced on pixel masks carry a
    quantisation saw-tooth correlated over tens of px, whose level is read from
    the sequences' roughness (``pair_noise_floor``); followed, it is a depth
-   ripple that made threads 5-40 mm too long (issue 7);
+   ripple that makes the thread too long;
 3. triangulation of every left sample with a supported disparity
-   (``StereoCamera.triangulate``): the dense vertices ``points``;
+   (:mod:`suture_reconstruction.triangulation`): the dense vertices ``points``;
 4. resampling of the vertices every ``vertex_step`` along each unbroken run and
    Algorithm 1 (:mod:`suture_reconstruction.shape_graph`);
 5. a smoothing spline through the path's vertices, re-parametrised by arc
@@ -52,16 +52,19 @@ from suture_common.camera import CameraModelError, StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
 from suture_reconstruction.pairing import (
+    Disparity,
     DisparitySmoothing,
     PairingParams,
+    Pairs,
     SelectionCosts,
     pair_noise_floor,
     pair_sequences,
     regularise_disparity,
 )
 from suture_reconstruction.photometric import PhotometricParams, check_image_pair, refine_disparity
-from suture_reconstruction.sequences import as_sequence, check_plausible, resample, smooth_sequence
+from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible, resample, smooth_sequence
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
+from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
 
 
 @dataclass(frozen=True)
@@ -192,29 +195,158 @@ def reconstruct(
     params: ReconstructionParams | None = None,
     images: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Reconstruction:
-    """Reconstruct the thread from its ordered left (N, 2) and right (M, 2) sequences (pixels u, v).
+    """Reconstruct the thread in 3D from its ordered sequences in a rectified stereo pair.
 
-    ``images``: optionally the rectified (left, right) images of the same stereo pair, (H, W) or
-    (H, W, C) uint8 of the camera's size; with them the disparity is refined photometrically
-    (step 2 of the module docstring). See the module docstring for the steps and errors.
+    The steps are those of the module docstring: validate, smooth and resample the sequences;
+    pair them on epipolar rows and regularise the disparity (refined by the images when given);
+    triangulate; Algorithm 1; a smoothing spline; the grasp pose.
+
+    Parameters
+    ----------
+    left_sequence, right_sequence : (N, 2) and (M, 2) array_like of float
+        The thread's ordered centreline in the left and right rectified images, pixels (u, v)
+        from the cut tip, about 1 px apart, as the ordering stage publishes them ((N, 3) arrays
+        are accepted, the third column ignored). A step longer than ``params.max_jump_px`` is
+        taken as a jump over a hidden stretch.
+    camera : suture_common.camera.StereoCamera
+        The rectified pair (intrinsics, baseline in m, image size).
+    params : ReconstructionParams, optional
+        Every tunable; the defaults when None.
+    images : (left, right) tuple of ndarray, optional
+        The rectified images of the same stereo pair, (H, W) or (H, W, C) uint8 of the camera's
+        size; with them the disparity is refined photometrically.
+
+    Returns
+    -------
+    Reconstruction
+        In the left camera optical frame, metres: ``points`` (K, 3) float64 dense vertices,
+        ``path`` (P, 3) float64 smooth centreline from the cut tip every ``params.path_step``,
+        ``length`` (m), ``grasp_position`` (3,) and ``grasp_quaternion`` (4,) x y z w, and
+        diagnostics (``left_uv``, ``disparity`` px, ``rejected``, ``timings_ms``...).
+
+    Raises
+    ------
+    InvalidSequenceError
+        A sequence of the wrong shape, with NaN/inf, outside the image or implausibly long.
+    TooFewPointsError
+        Fewer than ``params.min_points`` points in a view, or too few 3D vertices.
+    NoStereoOverlapError
+        Fewer than ``params.min_pairs`` left samples pair with the right sequence.
+    ThreadTooShortError
+        The reconstructed thread is shorter than ``params.grasp_arc_length``.
+    ImagePairError
+        ``images`` that do not fit the camera.
+    ReconstructionError
+        Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
+        point (the base class of all the above; a ``ValueError``).
+    suture_common.camera.CameraModelError
+        ``camera`` is not a StereoCamera.
+
+    Examples
+    --------
+    A curved thread about 64 mm long, 100-110 mm in front of the camera, seen in both views:
+
+    >>> import numpy as np
+    >>> from suture_common.camera import StereoCamera
+    >>> from suture_reconstruction import reconstruct
+    >>> camera = StereoCamera.default(640, 480)
+    >>> s = np.linspace(0.0, 1.0, 400)
+    >>> thread = np.column_stack([0.06 * s - 0.03, 0.01 * np.sin(3 * s), 0.1 + 0.01 * s])
+    >>> left, right = camera.project(thread, "left"), camera.project(thread, "right")
+    >>> result = reconstruct(left, right, camera)
+    >>> result.path.shape[1], result.path.dtype
+    (3, dtype('float64'))
+    >>> true_length = np.linalg.norm(np.diff(thread, axis=0), axis=1).sum()
+    >>> print(f"{1000 * result.length:.1f} mm (true {1000 * true_length:.1f} mm)")
+    64.2 mm (true 64.2 mm)
+    >>> print("tip at", np.round(1000 * result.path[0], 1) + 0.0, "mm")
+    tip at [-30.   0. 100.] mm
     """
     params = params or ReconstructionParams()
     if not isinstance(camera, StereoCamera):
         raise CameraModelError(f"camera must be a StereoCamera, got {type(camera).__name__}")
-    clock = time.perf_counter()
-    left_raw = as_sequence(left_sequence, "left", params.min_points)
-    right_raw = as_sequence(right_sequence, "right", params.min_points)
-    check_plausible(left_raw, camera.width, camera.height, "left")
-    check_plausible(right_raw, camera.width, camera.height, "right")
+    timer = _StepTimer()
+    left, right = _checked_sequences(left_sequence, right_sequence, camera, params.min_points)
     if images is not None:
         images = check_image_pair(images, camera.width, camera.height)
-
-    left = resample(smooth_sequence(left_raw, params.smoothing_window), 1.0, params.max_jump_px)
-    right = resample(smooth_sequence(right_raw, params.smoothing_window), 1.0, params.max_jump_px)
-    n_left = len(left.points)
-
-    # --- pairing
+    left, right = _observed(left, params), _observed(right, params)
     d_range = (camera.disparity(params.pairing.max_depth), camera.disparity(params.pairing.min_depth))
+    pairs, disparity, rejected = _stereo_disparity(left, right, d_range, params)
+    timer.lap("pairing")
+    image_matches = 0
+    if images is not None:
+        disparity, image_matches = refine_disparity(
+            images, left.points, left.observed, disparity, pairs, params.disparity, params.photometric
+        )
+    timer.lap("photometric")
+    triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
+    rejected["unsupported"] = triangulated.unsupported
+    timer.lap("triangulation")
+    vertices, shape = _shape(triangulated, params)
+    timer.lap("optimisation")
+    curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
+    path = curve.resample(params.path_step)
+    grasp = grasp_pose(curve, params.grasp_arc_length)
+    timer.lap("curve_and_grasp")
+    return Reconstruction(
+        points=triangulated.points,
+        left_uv=triangulated.left_uv,
+        disparity=triangulated.disparity,
+        vertices=vertices,
+        shape=shape,
+        curve=curve,
+        path=path,
+        length=curve.length,
+        grasp_position=grasp.position,
+        grasp_quaternion=grasp.quaternion,
+        rejected=rejected,
+        timings_ms=timer.timings(),
+        image_matches=image_matches,
+    )
+
+
+class _StepTimer:
+    """Wall time (ms) of consecutive steps, each from the end of the one before."""
+
+    def __init__(self) -> None:
+        self._last = time.perf_counter()
+        self._laps: dict[str, float] = {}
+
+    def lap(self, step: str) -> None:
+        now = time.perf_counter()
+        self._laps[step] = 1000 * (now - self._last)
+        self._last = now
+
+    def timings(self) -> dict[str, float]:
+        """The steps' times and their ``total``."""
+        return {**self._laps, "total": sum(self._laps.values())}
+
+
+def _checked_sequences(
+    left_sequence: np.ndarray, right_sequence: np.ndarray, camera: StereoCamera, min_points: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both sequences as (N, 2) float64 pixels, checked for shape, values and plausibility."""
+    left = as_sequence(left_sequence, "left", min_points)
+    right = as_sequence(right_sequence, "right", min_points)
+    check_plausible(left, camera.width, camera.height, "left")
+    check_plausible(right, camera.width, camera.height, "right")
+    return left, right
+
+
+def _observed(sequence: np.ndarray, params: ReconstructionParams) -> Resampled:
+    """A sequence smoothed lightly and resampled every 1 px, jumps marked as not observed."""
+    return resample(smooth_sequence(sequence, params.smoothing_window), 1.0, params.max_jump_px)
+
+
+def _stereo_disparity(
+    left: Resampled, right: Resampled, d_range: tuple[float, float], params: ReconstructionParams
+) -> tuple[Pairs, Disparity, dict[str, int]]:
+    """The stereo pairs, the regularised disparity along the left samples, and the counts of
+    left samples without a pair by reason (``outlier`` included).
+
+    Raises NoStereoOverlapError with fewer than ``params.min_pairs`` pairs.
+    """
+    n_left = len(left.points)
     pairs = pair_sequences(left.points, left.observed, right.points, right.observed, d_range, params.pairing)
     rejected = dict(pairs.rejected)
     if pairs.rows.size < params.min_pairs:
@@ -230,35 +362,12 @@ def reconstruct(
         n_left, pairs.rows, pairs.disparity, pairs.weight, params.disparity, noise_floor
     )
     rejected["outlier"] = int((~disparity.inlier).sum())
-    t_pairing = time.perf_counter()
-    image_matches = 0
-    if images is not None:
-        disparity, image_matches = refine_disparity(
-            images, left.points, left.observed, disparity, pairs, params.disparity, params.photometric
-        )
-    t_photometric = time.perf_counter()
+    return pairs, disparity, rejected
 
-    # --- triangulation
-    with np.errstate(invalid="ignore"):
-        valid = (
-            left.observed
-            & disparity.supported
-            & (disparity.value >= d_range[0])
-            & (disparity.value <= d_range[1])
-        )
-    rejected["unsupported"] = int((left.observed & ~valid).sum())
-    index = np.flatnonzero(valid)
-    if index.size < params.min_pairs:
-        raise NoStereoOverlapError(
-            f"only {index.size} left samples have a disparity within the limits after regularisation"
-        )
-    left_uv = left.points[index]
-    d = disparity.value[index]
-    points = camera.triangulate(left_uv, left_uv[:, 0] - d)
-    t_triangulation = time.perf_counter()
 
-    # --- Algorithm 1
-    vertices = _resample_runs(points, index, params.vertex_step)
+def _shape(triangulated: Triangulated, params: ReconstructionParams) -> tuple[np.ndarray, ShapePath]:
+    """The vertices every ``vertex_step`` along each unbroken run, and Algorithm 1's path."""
+    vertices = resample_runs(triangulated.points, triangulated.index, params.vertex_step)
     if len(vertices) < 2:
         raise TooFewPointsError(f"only {len(vertices)} 3D vertex after resampling; the thread is too short")
     try:
@@ -267,56 +376,4 @@ def reconstruct(
         raise
     except ValueError as exc:
         raise ReconstructionError(str(exc)) from None
-    t_shape = time.perf_counter()
-
-    # --- curve and grasp
-    curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
-    path = curve.resample(params.path_step)
-    grasp = grasp_pose(curve, params.grasp_arc_length)
-    t_grasp = time.perf_counter()
-
-    timings = {
-        "pairing": 1000 * (t_pairing - clock),
-        "photometric": 1000 * (t_photometric - t_pairing),
-        "triangulation": 1000 * (t_triangulation - t_photometric),
-        "optimisation": 1000 * (t_shape - t_triangulation),
-        "curve_and_grasp": 1000 * (t_grasp - t_shape),
-    }
-    timings["total"] = sum(timings.values())
-    return Reconstruction(
-        points=points,
-        path=path,
-        length=curve.length,
-        grasp_position=grasp.position,
-        grasp_quaternion=grasp.quaternion,
-        left_uv=left_uv,
-        disparity=d,
-        vertices=vertices,
-        shape=shape,
-        curve=curve,
-        rejected=rejected,
-        timings_ms=timings,
-        image_matches=image_matches,
-    )
-
-
-def _resample_runs(points: np.ndarray, index: np.ndarray, step: float) -> np.ndarray:
-    """Resample (K, 3) ``points`` every ``step`` m within each run of consecutive ``index`` values.
-
-    A break in ``index`` (samples without a vertex between) is a gap that is not
-    filled: Algorithm 1 bridges it by growing tau_L. A run's last point is kept.
-    """
-    breaks = np.flatnonzero(np.diff(index) > 1) + 1
-    runs = np.split(np.arange(len(points)), breaks)
-    out = []
-    for run in runs:
-        chain = points[run]
-        seg = np.linalg.norm(np.diff(chain, axis=0), axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(seg)])
-        s = np.arange(0.0, arc[-1], step) if arc[-1] > 0 else np.zeros(1)
-        if arc[-1] - s[-1] > 0.25 * step:
-            s = np.append(s, arc[-1])
-        else:
-            s[-1] = arc[-1] if s.size > 1 else s[-1]
-        out.append(np.column_stack([np.interp(s, arc, chain[:, k]) for k in range(3)]))
-    return np.concatenate(out)
+    return vertices, shape

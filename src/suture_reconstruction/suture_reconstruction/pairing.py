@@ -453,10 +453,9 @@ class DisparitySmoothing:
 
     The ladder of smoothing lengths h: the standard scales from
     ``min_bandwidth_px`` (a little over the 9-sample Savitzky-Golay pre-smoothing
-    window, over which the pairs' noise is correlated: on predicted masks the
-    two views' centrelines also differ by runs of a pixel-edge flip, and 12 px
-    against 9 lowered the median grasp error over 1,400 fresh frames from 0.86 to
-    0.82 mm, 0.75 to 0.73 mm on true masks) up to ``max_bandwidth_px`` in steps of
+    window, over which the pairs' noise is correlated; on predicted masks the
+    two views' centrelines also differ by runs of a pixel-edge flip, which a
+    scale as short as the window would follow) up to ``max_bandwidth_px`` in steps of
     x``bandwidth_ratio``, and below them fine scales, down to the h that reaches
     only ``min_reach_px`` even where the pairs are weakest (see :meth:`bandwidths`).
     ``threshold`` and ``fine_threshold``: Gamma of the intersection-of-confidence-intervals
@@ -549,9 +548,9 @@ def pair_noise_floor(left: np.ndarray, right: np.ndarray, params: DisparitySmoot
     c^2 = slow^2 - (ratio fast)^2 - ``roughness_exact_px``^2 (not below 0), the
     last term the local fit's own error on an exact image curve (the most seen
     on exact simulated sequences, tight loops included), so exact sequences
-    get no floor and their fit is as before (it follows the pairs' 0.01 px
-    precision; a floor of 0.008 px already flattened a lift enough to move one
-    grasp point by 0.3 mm). An error e across
+    get no floor and their fit follows the pairs' 0.01 px precision (a floor of
+    0.008 px already flattens a lift enough to move a grasp point by 0.3 mm).
+    An error e across
     the thread moves a crossing at angle a to the rows by e / sin(a), so for a
     pair of unit weight the views add as hypot(c_left, c_right), and
     ``roughness_gain`` scales that to the correlated error's equivalent white
@@ -598,7 +597,7 @@ def regularise_disparity(
     sharp depth change where the thread is lifted over a crossing keeps its
     shape while long weak stretches are averaged widely.
 
-    Why each part is as it is (each was a cause of grasp errors of 2-4 mm on
+    Why each part is as it is (each prevents grasp errors of 2-4 mm on
     ground-truth sequences, where the pairs are exact to about 0.01 px: where
     the thread rises steeply over a crossing 1 px of disparity is about 3 mm of
     depth against 0.2 mm of image position, so a fit that cannot follow a 2 px
@@ -614,16 +613,16 @@ def regularise_disparity(
       at the weakest pairs present (a fine scale counts only where it reaches
       at least that much), but a fine scale needs the stronger evidence
       ``fine_threshold`` (Gamma 4 instead of 1.5) to be preferred: with noisy
-      pairs (0.3 px per view) that is rare and the result is as before, with
+      pairs (0.3 px per view) that is rare and the standard scales decide, with
       exact pairs sigma is tiny and the lifts are followed.
     * **Outliers against the adaptive fit.** Pairs whose weighted residual from
       a first adaptive fit of all pairs exceeds ``outlier_sigma`` robust sigmas
       and ``min_outlier_px`` are rejected and the rest fitted again. An isolated
       wrong crossing moves even the shortest scale by a fraction of its error,
       so it stands out; a run of correct pairs along a real disparity change is
-      followed by the adaptive fit and kept. (A fixed mid-scale fit, used
-      before, reaches over 100 px on a stretch a few degrees off the rows and
-      rejected exactly those pairs: 20-35 of them on a lifted stretch.)
+      followed by the adaptive fit and kept. (A fixed mid-scale fit reaches over
+      100 px on a stretch a few degrees off the rows and would reject exactly
+      those pairs: 20-35 of them on a lifted stretch.)
     * **No steps between scales.** Neighbouring samples may pick different
       scales, whose fits differ by up to a few tenths of a px; taken as they
       are, those are steps of the depth (0.5 mm at 100 mm), a saw-tooth along

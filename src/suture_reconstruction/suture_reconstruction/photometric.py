@@ -4,10 +4,10 @@ The pairs of :mod:`suture_reconstruction.pairing` come from the two views'
 centrelines, traced on binary masks. Their disparity is right on average, but a
 mask edge that sits a pixel off in one view moves that view's centreline by
 half a pixel or more over a stretch, and with an endoscope's 5 mm baseline half
-a pixel of disparity is 2-3 mm of depth at 100-120 mm. Over fresh simulated sets
-most grasps more than 5 mm off came from such biases (0.5-3 px), not from the
-ordering: with the true disparity on the same predicted sequences they were
-within 3 mm. The images carry the thread's position to a tenth of a pixel.
+a pixel of disparity is 2-3 mm of depth at 100-120 mm: on predicted sequences
+such biases (0.5-3 px), not the ordering, cause most grasps more than 5 mm off
+(with the true disparity the same sequences give grasps within 3 mm). The
+images carry the thread's position to a tenth of a pixel.
 
 :func:`match_along_rows` matches, for left samples of the thread, a small
 window of the left image around the thread against the right image along the
@@ -15,7 +15,7 @@ same row (a rectified pair), near the disparity the pairs gave:
 
 * Both images are blurred first (Gaussian, ``blur_sigma_px``). A braided thread
   1-2 px wide has texture near the pixel pitch, which each view samples at its
-  own phase (aliasing): unblurred, matched windows disagreed by up to 1.5 px on
+  own phase (aliasing): unblurred, matched windows disagree by up to 1.5 px on
   such threads; blurred, the thread's profile and edges remain and match.
 * The window is the thread's own neighbourhood: the pixels within
   ``radius_px`` along the local tangent and ``half_width_px`` across it, so
@@ -28,9 +28,9 @@ same row (a rectified pair), near the disparity the pairs gave:
   and its neighbours gives the sub-pixel minimum.
 * Its confidence is the parabola's curvature over the residual cost at the
   minimum (plus one grey level squared of noise): the inverse of the
-  estimate's variance up to a factor. Over 61,000 samples of 160 frames of
-  predicted sequences the median error fell from 0.33 px at confidence below
-  0.1 to 0.03 px above 2, against 0.09-0.2 px for the mask pairs; a thread
+  estimate's variance up to a factor. On predicted sequences the median error
+  is 0.33 px at confidence below 0.1 and 0.03 px above 2, against 0.09-0.2 px
+  for the mask pairs; a thread
   along the rows (shifting it along itself changes nothing) and a window the
   right view does not see give low confidence.
 
@@ -77,8 +77,8 @@ class PhotometricParams:
     ``max_confidence``, ``mask_pair_weight``, ``gap_guard_px``, ``max_change_px`` (see the
     module docstring) and ``noise_floor_px``, the noise floor of the fused pairs: on a faint
     thread the matches' errors are correlated over tens of px (the background's texture pulls
-    them), so the fit must not follow them closely; 0.3 px against 0.05 took 2,250 fresh
-    frames from 96.1 to 96.6 % of grasps within 5 mm, the median error from 0.37 to 0.44 mm.
+    them), so the fit must not follow them closely: 0.3 px rather than 0.05 gives more grasps
+    within 5 mm at a slightly larger median error.
     """
 
     blur_sigma_px: float = 1.0

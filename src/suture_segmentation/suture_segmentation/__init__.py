@@ -1,1 +1,7 @@
-"""Segmentation stage (not built yet, issue 3): U-Net, training CLI, inference backends, segmentation_node."""
+"""Segmentation stage: the suture U-Net, its training and export CLI (``suture-seg``), inference.
+
+The ROS-free entry point is :class:`suture_segmentation.core.Segmenter` (and
+:func:`suture_segmentation.core.segment_stereo` with the shipped weights);
+``segmentation_node`` is its rclpy adapter. The package does not import torch on import:
+import :mod:`suture_segmentation.core` for inference.
+"""

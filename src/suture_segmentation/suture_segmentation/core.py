@@ -27,10 +27,10 @@ from suture_segmentation.checkpoint import WeightsError, load_checkpoint, onnx_b
 from suture_segmentation.model import STRIDE, SUTURE, pad_to_multiple, suture_probability
 
 BACKENDS = ("onnx", "torch")
-#: Default lower threshold of the low masks (:meth:`Segmenter.segment_pair_with_low`). On 3,250
-#: fresh simulated frames (M-oST int8), ordering from them where they reach farther gave 28 more
-#: grasp points within 5 mm and lost none; 0.3 as the mask threshold itself gained 44 but lost 30
-#: (the wider masks' centrelines).
+#: Default lower threshold of the low masks (:meth:`Segmenter.segment_pair_with_low`): where a
+#: faint thread's probability stays between it and the mask threshold, the low mask keeps the
+#: thread whole. It serves the low masks only: as the mask threshold itself it would widen every
+#: mask and move the centrelines traced on them.
 LOW_THRESHOLD = 0.3
 
 
@@ -43,26 +43,61 @@ class StereoSizeMismatchError(SegmentationInputError):
 
 
 class Segmenter:
-    """A loaded suture U-Net.
+    """A loaded suture U-Net that turns camera images into thread masks.
 
-    Args:
-        weights: a ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx``
-            file (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"``
-            (or their int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``) for a shipped
-            model, or None for the shipped M-ToSOT.
-        backend: ``"onnx"`` (ONNX Runtime) or ``"torch"``.
-        device: ``"cpu"`` or ``"cuda"`` (``"cuda:1"`` ...); ONNX on CUDA needs onnxruntime-gpu.
-        threshold: suture probability above which a pixel is suture, in (0, 1).
-        low_threshold: the lower threshold of the *low masks* (:meth:`segment_pair_with_low`):
-            pixels above it that connect to a pixel above ``threshold`` (hysteresis), in
-            (0, threshold]; None: no low masks.
-        input_size: (width, height) to resize images to before inference (masks are resized
-            back), or None to run at the image's own size. Smaller is faster, thin threads suffer.
-        threads: CPU threads of the backend (None: the runtime's default).
+    Parameters
+    ----------
+    weights : str or pathlib.Path, optional
+        A ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx`` file
+        (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"`` (or their
+        int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``) for a shipped model, or None for
+        the shipped M-ToSOT.
+    backend : {"onnx", "torch"}
+        ONNX Runtime or PyTorch.
+    device : str
+        ``"cpu"`` or ``"cuda"`` (``"cuda:1"`` ...); ONNX on CUDA needs onnxruntime-gpu.
+    threshold : float
+        Suture probability above which a pixel is suture, in (0, 1).
+    input_size : (int, int), optional
+        (width, height) in px to resize images to before inference (masks are resized back);
+        None runs at the image's own size. Smaller is faster, thin threads suffer.
+    threads : int, optional
+        CPU threads of the backend; None: the runtime's default.
+    low_threshold : float, optional
+        The lower threshold of the *low masks* (:meth:`segment_pair_with_low`): pixels above it
+        that connect to a pixel above ``threshold`` (hysteresis), in (0, threshold]; None: no
+        low masks.
 
-    Raises:
-        WeightsError: the weights cannot be loaded.
-        ValueError: unknown backend or device, threshold outside (0, 1), bad input size.
+    Raises
+    ------
+    WeightsError
+        The weights cannot be loaded.
+    ValueError
+        Unknown backend or device, a threshold outside its range, a bad input size.
+
+    Notes
+    -----
+    Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; masks are (H, W) uint8, 0 or 255, of
+    the image's size. Bad images raise :class:`SegmentationInputError`.
+
+    Examples
+    --------
+    A dark thread 2 px wide drawn on reddish tissue, segmented by the shipped model on the CPU:
+
+    >>> import cv2
+    >>> import numpy as np
+    >>> from suture_segmentation.core import Segmenter
+    >>> segmenter = Segmenter(threads=1)
+    >>> image = np.full((96, 128, 3), (170, 90, 90), np.uint8)
+    >>> thread = np.array([[10, 20], [60, 50], [118, 70]], np.int32)
+    >>> _ = cv2.polylines(image, [thread], False, (40, 30, 120), 2)
+    >>> left_mask, right_mask = segmenter.segment_pair(image, image)
+    >>> left_mask.shape, left_mask.dtype, np.unique(left_mask).tolist()
+    ((96, 128), dtype('uint8'), [0, 255])
+    >>> drawn = np.zeros((96, 128), np.uint8)
+    >>> _ = cv2.polylines(drawn, [thread], False, 255, 2)
+    >>> bool((left_mask[drawn > 0] == 255).mean() > 0.8)
+    True
     """
 
     def __init__(
@@ -110,7 +145,7 @@ class Segmenter:
             torch_model, self.meta = load_checkpoint(self.weights)
             model = onnx_bytes(torch_model)
         options = onnxruntime.SessionOptions()
-        # Idle worker threads sleep instead of spinning: on a few cores, spinning ones took CPU
+        # Idle worker threads sleep instead of spinning: on a few cores, spinning ones take CPU
         # from the other nodes and from the next run itself (README, "Node graph latency").
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         if threads:
@@ -148,7 +183,7 @@ class Segmenter:
 
     def _onnx_probabilities(self, batch: np.ndarray) -> np.ndarray:
         """ONNX Runtime on a (B, 3, H, W) batch with numpy around it, not torch: torch's OpenMP
-        workers spun after each frame's few milliseconds of pre- and post-processing, beside the
+        workers spin after each frame's few milliseconds of pre- and post-processing, beside the
         runtime's own threads (10 % of a core in the node graph at 5 frames/s)."""
         height, width = batch.shape[-2:]
         padded, _ = pad_to_multiple(torch.from_numpy(batch))  # no torch work where none is needed
@@ -164,11 +199,14 @@ class Segmenter:
         return [_as_mask(p > self.threshold) for p in self.probabilities(images)]
 
     def segment_pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Masks of a stereo pair (one batch of two).
+        """(H, W) uint8 masks (0 or 255) of a stereo pair, run as one batch of two.
 
-        Raises:
-            StereoSizeMismatchError: left and right differ in size.
-            SegmentationInputError: an image cannot be segmented.
+        Raises
+        ------
+        StereoSizeMismatchError
+            Left and right differ in size.
+        SegmentationInputError
+            An image cannot be segmented.
         """
         _check_same_size(left, right)
         left_mask, right_mask = self.segment([left, right])
@@ -186,7 +224,10 @@ class Segmenter:
         farther (:func:`suture_ordering.order_stereo`). Both are (H, W) uint8, 0 or 255; the
         low masks are None when ``low_threshold`` is None.
 
-        Raises: as :meth:`segment_pair`.
+        Raises
+        ------
+        StereoSizeMismatchError, SegmentationInputError
+            As :meth:`segment_pair`.
         """
         _check_same_size(left, right)
         probability = self.probabilities([left, right])

@@ -1,0 +1,60 @@
+"""Plane geometry of the ordering search: angles between directions, rotations, the bend of a
+connection and the cubic Hermite curve of a smooth step.
+
+Directions are (2,) or (k, 2) float arrays (u, v) in pixels; angles are radians.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: cv2 drawing with 1/16 px precision (``shift`` of cv2.line / cv2.polylines).
+LINE_SHIFT = 4
+
+
+def signed_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (rad) that turns direction ``a`` into ``b``, in (-pi, pi]."""
+    return math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])
+
+
+def rotate(v: np.ndarray, angle: float) -> np.ndarray:
+    """(2,) ``v`` turned by ``angle`` (rad)."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def turn_angles(direction: np.ndarray, heading: np.ndarray | None) -> np.ndarray:
+    """δ (rad) between each row of ``direction`` (k, 2) and ``heading`` (2,); 0 without heading."""
+    if heading is None:
+        return np.zeros(len(direction))
+    norm = np.sqrt((direction * direction).sum(axis=1) * float(heading @ heading))
+    cos = (direction @ heading) / np.maximum(norm, 1e-12)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def bend(start: np.ndarray, t_start: np.ndarray, end: np.ndarray, t_end: np.ndarray) -> float:
+    """|α1 - α2| of the chord start -> end: α1 from ``t_start`` to the chord, α2 from the chord
+    to ``t_end`` (0 for any circular arc; large for a corner)."""
+    chord = end - start
+    return abs(signed_angle(t_start, chord) - signed_angle(chord, t_end))
+
+
+def hermite(start: np.ndarray, end: np.ndarray, tangent0: np.ndarray, tangent1: np.ndarray) -> np.ndarray:
+    """Points (excluding ``start``) ~1 px apart on the cubic Hermite curve start -> end."""
+    n = max(2, math.ceil(1.2 * float(np.hypot(*(end - start)))))
+    t = (np.arange(1, n + 1) / n)[:, None]
+    t2, t3 = t * t, t * t * t
+    return (
+        (2 * t3 - 3 * t2 + 1) * start
+        + (t3 - 2 * t2 + t) * tangent0
+        + (-2 * t3 + 3 * t2) * end
+        + (t3 - t2) * tangent1
+    )
+
+
+def fixed_point(point: np.ndarray) -> tuple[int, int]:
+    """(2,) ``point`` in cv2's fixed-point coordinates (:data:`LINE_SHIFT` fractional bits)."""
+    scaled = np.rint(point * (1 << LINE_SHIFT)).astype(int)
+    return int(scaled[0]), int(scaled[1])

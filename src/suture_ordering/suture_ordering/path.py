@@ -1,0 +1,169 @@
+"""One fork of the ordering search: the path it has traversed, the thread's width and the
+direction its curvature predicts, and how a step extends it.
+
+Turning angle δ.
+    Eq. (4) measures δ from the last chord ``V^t - V^{t-1}``; on a curved thread
+    that makes every step look like a turn, and a crossing strand can look
+    straighter than the thread's own curling continuation. δ is therefore
+    measured from the direction the thread's curvature predicts: the last chord
+    turned by the last turn (the angle between the two previous chords), i.e. the
+    next chord of the circle through the last three vertices; for a straight
+    thread this is the paper's δ (``curvature_prediction=False`` gives Eq. 4 as
+    written). Steps through merged cross-sections (a crossing) do not update the
+    prediction for up to Υ; longer merged stretches (threads side by side) do.
+    δ = 0 for the first step (t = 1), which has no previous vertex.
+
+Detected nodes.
+    Each branch draws its path, ``thickness`` px wide, into its own ``consumed`` raster
+    (the padded mask's shape): nodes on it are *detected*, i.e. within ``detect_radius``
+    of the path traversed so far.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from suture_ordering.context import SearchContext
+from suture_ordering.geometry import LINE_SHIFT, fixed_point, hermite, rotate, signed_angle
+
+
+@dataclass
+class Branch:
+    """One fork of the search: the parameter sets (rows of the grid) that agreed so far."""
+
+    rows: np.ndarray
+    consumed: np.ndarray
+    vertices: list[np.ndarray]
+    segments: list[np.ndarray] = field(default_factory=list)
+    segment_bridged: list[bool] = field(default_factory=list)
+    junctions: int = 0
+    widths: list[float] = field(default_factory=list)
+    heading: np.ndarray | None = None
+    track: np.ndarray | None = None
+    turn: float = 0.0
+    clean_steps: int = 0
+    merged_steps: int = 0
+    steps: int = 0
+    bridges: int = 0
+    status: str = ""
+
+    def fork(self, rows: np.ndarray) -> Branch:
+        return Branch(
+            rows=rows,
+            consumed=self.consumed.copy(),
+            vertices=list(self.vertices),
+            segments=list(self.segments),
+            segment_bridged=list(self.segment_bridged),
+            junctions=self.junctions,
+            widths=list(self.widths),
+            heading=None if self.heading is None else self.heading.copy(),
+            track=None if self.track is None else self.track.copy(),
+            turn=self.turn,
+            clean_steps=self.clean_steps,
+            merged_steps=self.merged_steps,
+            steps=self.steps,
+            bridges=self.bridges,
+        )
+
+    @property
+    def length(self) -> int:
+        return 1 + sum(len(s) for s in self.segments)
+
+
+def thread_width(branch: Branch) -> float | None:
+    """The median of the last nine clean cross-sections' widths (px); None before the first."""
+    if not branch.widths:
+        return None
+    recent = sorted(branch.widths[-9:])
+    return recent[len(recent) // 2]
+
+
+def predicted_heading(branch: Branch) -> np.ndarray | None:
+    """Direction δ is measured from: the thread's track turned by its last turn."""
+    if branch.track is None or branch.turn == 0.0:
+        return branch.track
+    return rotate(branch.track, branch.turn)
+
+
+def tangent_at_vertex(branch: Branch) -> np.ndarray | None:
+    """The thread's tangent at the current vertex: the track turned by half the last turn."""
+    if branch.track is None or branch.turn == 0.0:
+        return branch.track
+    return rotate(branch.track, branch.turn / 2)
+
+
+def entry_point(branch: Branch, radius: float) -> np.ndarray | None:
+    """Where the path traversed so far last enters the circle of ``radius`` around the vertex."""
+    vertex = branch.vertices[-1]
+    for segment in reversed(branch.segments):
+        outside = np.flatnonzero(np.hypot(*(segment - vertex).T) >= radius)
+        if outside.size:
+            return segment[outside[-1]]
+    return None
+
+
+def advance(
+    context: SearchContext,
+    branch: Branch,
+    target: np.ndarray,
+    width: float,
+    continuation: np.ndarray | None = None,
+    bridge: bool = False,
+) -> None:
+    """Append the step V^t -> target to ``branch``: a chord, or a cubic Hermite curve ending
+    along ``continuation`` (across a gap when ``bridge``, else across a junction)."""
+    params, scaled, pad = context.params, context.scaled, context.reader.pad
+    start = branch.vertices[-1]
+    chord = target - start
+    length = float(np.hypot(*chord))
+    if continuation is None:
+        n = max(1, math.ceil(length))
+        segment = start + (np.arange(1, n + 1) / n)[:, None] * chord
+        cv2.line(
+            branch.consumed,
+            fixed_point(start + pad),
+            fixed_point(target + pad),
+            1,
+            context.thickness,
+            cv2.LINE_8,
+            LINE_SHIFT,
+        )
+    else:
+        before = tangent_at_vertex(branch)
+        before = chord if before is None else before
+        segment = hermite(start, target, before / np.linalg.norm(before) * length, continuation * length)
+        pts = np.rint((np.vstack((start, segment)) + pad) * (1 << LINE_SHIFT)).astype(np.int32)
+        cv2.polylines(branch.consumed, [pts], False, 1, context.thickness, cv2.LINE_8, LINE_SHIFT)
+        if bridge:
+            branch.bridges += 1
+        else:
+            branch.junctions += 1
+    branch.segments.append(segment)
+    branch.segment_bridged.append(bridge)
+    branch.vertices.append(target)
+    expected = thread_width(branch)
+    clean = continuation is None and (expected is None or width <= params.wide_arc_factor * expected)
+    if clean:
+        branch.widths.append(width)
+    branch.heading = chord
+    if continuation is not None:  # after a gap or junction: go on along the thread's tangent there
+        branch.track, branch.turn, branch.clean_steps = continuation * length, 0.0, 0
+    elif not clean:  # a merged cross-section (a crossing, touching threads)
+        branch.merged_steps += 1
+        if branch.merged_steps * scaled.step_radius <= scaled.roi_radius or branch.track is None:
+            # keep the track through a junction (up to Υ) ...
+            branch.track = chord if branch.track is None else rotate(branch.track, branch.turn)
+        else:  # ... but follow a longer merged stretch (two threads side by side)
+            branch.track, branch.turn = chord, 0.0
+        branch.clean_steps = 0
+    else:
+        if branch.track is not None and branch.clean_steps > 0 and params.curvature_prediction:
+            branch.turn = signed_angle(branch.track, chord)
+        branch.track = chord
+        branch.clean_steps += 1
+        branch.merged_steps = 0
+    branch.steps += 1

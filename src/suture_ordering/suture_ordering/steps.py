@@ -1,0 +1,163 @@
+"""One step of the ordering search: the admissible nodes around the current vertex, read circle
+by circle from the nearest, among which the parameter sets elect the next vertex (Eq. 6).
+
+Active, detected and far nodes.
+    The RoI is the annulus ``r_s <= |A - V^t| <= Υ`` (``step_radius``,
+    ``roi_radius``): nodes nearer than ``r_s`` lie between ``V^t`` and the next
+    vertex and are covered by the chord to it. *Detected* nodes are those within
+    ``detect_radius`` of the polyline traversed so far (kept as a raster). Since
+    the distance term prefers the nearest ring, circles are read lazily, from
+    ``r_s`` outward, and stop as soon as no farther node can have a lower cost
+    for any parameter set (every node at radius ``r`` costs at least
+    ``log(μ) + ε2 r``). Nodes on one circle are equidistant, so among them the
+    turning angle decides exactly, however small ε3 is. When the RoI holds no
+    admissible node, circles continue up to τ_O across a gap
+    (:mod:`suture_ordering.bridging`); a junction on the nearest circle is decided
+    across the whole junction (:mod:`suture_ordering.junctions`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from suture_ordering.bridging import gap_exit
+from suture_ordering.context import SearchContext
+from suture_ordering.geometry import turn_angles
+from suture_ordering.junctions import STOP, decided_across_junction, junction_step
+from suture_ordering.nodes import Candidates, Nodes
+from suture_ordering.path import Branch, predicted_heading, tangent_at_vertex, thread_width
+
+
+def admissible(
+    context: SearchContext,
+    branch: Branch,
+    nodes: Nodes,
+    heading: np.ndarray | None,
+    consumed_flat: np.ndarray,
+) -> Candidates | None:
+    """The admissible nodes among ``nodes``: not detected, δ < τ_V, O < τ_O (and bridge checks)."""
+    reader, params = context.reader, context.params
+    vertex = branch.vertices[-1]
+    position = nodes.position
+    direction = position - vertex
+    if heading is None:
+        delta = np.zeros(len(position))
+    else:  # |direction| = r for nodes on the circle around the vertex
+        cos = (direction @ heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
+        delta = np.arccos(np.clip(cos, -1.0, 1.0))
+    keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
+    if not keep.all():
+        if not keep.any():
+            return None
+        position, delta, direction = position[keep], delta[keep], direction[keep]
+        widths = nodes.width[keep]
+    else:
+        widths = nodes.width
+    out = reader.out_of_zone(vertex, position, nodes.radius)
+    continuation: list[np.ndarray | None] = [None] * len(position)
+    if not out.any():
+        return Candidates(
+            position,
+            np.full(len(position), float(nodes.radius)),
+            out,
+            delta,
+            widths,
+            continuation,
+            out > 0,
+        )
+    keep = out < context.scaled.tau_o
+    for j in np.flatnonzero(out > 0):  # bridged gaps: few, checked one by one
+        if not keep[j] or delta[j] >= params.bridge_turn_max:
+            keep[j] = False
+            continue
+        continuation[j] = gap_exit(
+            context, position[j], direction[j], tangent_at_vertex(branch), branch.consumed
+        )
+        keep[j] = continuation[j] is not None
+    if not keep.any():
+        return None
+    return Candidates(
+        position[keep],
+        np.full(int(keep.sum()), float(nodes.radius)),
+        out[keep],
+        delta[keep],
+        widths[keep],
+        [continuation[j] for j in np.flatnonzero(keep)],
+        out[keep] > 0,
+    )
+
+
+def farther_radii(
+    context: SearchContext, branch: Branch, vertex: np.ndarray, heading: np.ndarray | None
+) -> list[int]:
+    """Radii in (r_s, max_reach] whose circles meet an undetected mask pixel ahead, ascending."""
+    reader, scaled = context.reader, context.scaled
+    reach = scaled.max_reach
+    pad = reader.pad
+    cu, cv = round(float(vertex[0])) + pad, round(float(vertex[1])) + pad
+    window = (slice(cv - reach - 1, cv + reach + 2), slice(cu - reach - 1, cu + reach + 2))
+    rows, cols = np.nonzero(reader.mask[window] > branch.consumed[window])
+    if rows.size == 0:
+        return []
+    offset = np.column_stack((cols + (cu - reach - 1 - pad), rows + (cv - reach - 1 - pad))) - vertex
+    distance = np.sqrt((offset * offset).sum(axis=1))
+    near = (distance > scaled.step_radius) & (distance < reach + 1)
+    if heading is not None:
+        slack = math.asin(min(1.0, 1.0 / scaled.step_radius))
+        near &= turn_angles(offset, heading) < context.params.tau_v + slack
+    distance = distance[near]
+    radii = np.unique(np.concatenate((np.floor(distance), np.ceil(distance))).astype(int))
+    return [int(r) for r in radii if scaled.step_radius < r <= reach]
+
+
+def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None:
+    """Admissible nodes of the current RoI (widened across a gap if it has none), or None.
+
+    Circles are read from r_s outward and only while a farther node could still cost less
+    for some parameter set; beyond Υ only if the RoI held no admissible node.
+    """
+    reader, tuning = context.reader, context.tuning
+    vertex = branch.vertices[-1]
+    heading = predicted_heading(branch)
+    consumed_flat = branch.consumed.reshape(-1)
+    width = thread_width(branch)
+    r_s = context.scaled.step_radius
+    found: list[Candidates] = []
+    best = np.full(len(branch.rows), np.inf)
+    nodes = reader.nodes(vertex, r_s, width)
+    if nodes is not None:
+        first = admissible(context, branch, nodes, heading, consumed_flat)
+        if first is not None and heading is not None and decided_across_junction(context, first, width):
+            junction = junction_step(context, branch, heading, consumed_flat)
+            if junction is STOP:
+                return None
+            if junction is not None:
+                return junction
+        if first is not None:
+            inside = first.out == 0
+            if inside.any() and tuning.zone_dominates:
+                # Equidistant nodes inside the zone: every parameter set prefers the smallest
+                # turn, and no farther node can do better if even the largest ε3 keeps that
+                # cost below the cheapest node one pixel farther (no cost matrix needed).
+                turn = float(first.delta[inside].min())
+                if math.exp(tuning.eps3_max * math.sin(turn / 2)) <= (r_s + 1) / r_s:
+                    first.decided = int(np.flatnonzero(inside)[np.argmin(first.delta[inside])])
+                    return first
+            found.append(first)
+            best = tuning.cost(branch.rows, first).min(axis=1)
+            if np.all(best <= tuning.least_cost_at(branch.rows, r_s + 1)):
+                return first
+    for r in farther_radii(context, branch, vertex, heading):
+        if found and (r > context.scaled.roi_radius or np.all(best <= tuning.least_cost_at(branch.rows, r))):
+            break
+        nodes = reader.nodes(vertex, r, width)
+        if nodes is None:
+            continue
+        more = admissible(context, branch, nodes, heading, consumed_flat)
+        if more is None:
+            continue
+        found.append(more)
+        best = np.minimum(best, tuning.cost(branch.rows, more).min(axis=1))
+    return Candidates.concatenate(found) if found else None
