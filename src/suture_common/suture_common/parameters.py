@@ -52,6 +52,10 @@ def _kind(value: Any) -> str:
     raise TypeError(f"no ROS parameter type for {value!r}")
 
 
+def _a(kind: str) -> str:
+    return f"an {kind}" if kind[0] in "aeiou" else f"a {kind}"
+
+
 def _format_number(value: float) -> str:
     if value == math.inf:
         return "inf"
@@ -113,11 +117,11 @@ class ParameterSpec:
             given = type(value).__name__
         numbers = ("integer", "double")
         if given != expected and not self.dynamic_typing:  # with dynamic typing the node checks it
-            return f"parameter {self.name} = {value!r} is a {given}; expected a {expected}"
+            return f"{self.name} must be {_a(expected)}, got {value!r} ({_a(given)})"
         if self.range is not None and given in numbers:
             low, high = self.range
             if not low <= value <= high:
-                return f"parameter {self.name} = {value!r} is outside its range {self.range_text()}"
+                return f"{self.name} must be in {self.range_text()}, got {value!r}"
         return None
 
 

@@ -1,4 +1,4 @@
-"""What player_node and recorder_node share: parameter declaration and the main loop.
+"""What player_node and recorder_node share: the main loop.
 
 The main loop takes SIGINT/SIGTERM as a flag, spins, finishes and cleans up.
 
@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -22,21 +21,6 @@ from rclpy.signals import SignalHandlerOptions
 from suture_replay.replay import StopSignals
 
 N = TypeVar("N", bound=Node)
-
-
-def declare_parameters(node: Node, parameters: dict[str, tuple[Any, str]]) -> dict[str, Any]:
-    """Declare ``parameters`` (name -> (default, description)) on ``node``; their values by name.
-
-    Numbers may be given as int or double (dynamic typing); a single string given for the
-    string-array parameter ``topics`` counts as a list of one.
-    """
-    values = {}
-    for name, (default, description) in parameters.items():
-        descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
-        values[name] = node.declare_parameter(name, default, descriptor).value
-    if isinstance(values.get("topics"), str):
-        values["topics"] = [values["topics"]]
-    return values
 
 
 def run_until_stopped(

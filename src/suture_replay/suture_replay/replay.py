@@ -215,7 +215,10 @@ def _finite(name: str, value: Any) -> float:
 
 
 def _topic_list(name: str, topics: Any) -> tuple[str, ...]:
-    if isinstance(topics, str) or not all(isinstance(t, str) for t in topics):
+    """``topics`` checked, as a tuple; a single name is a list of one (``-p topics:=/a`` at start-up)."""
+    if isinstance(topics, str):
+        topics = [topics]
+    if not all(isinstance(t, str) for t in topics):
         raise ValueError(f"{name} must be a list of topic names, got {topics!r}")
     topics = tuple(topics)
     if not topics:
