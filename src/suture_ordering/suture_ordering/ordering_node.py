@@ -170,9 +170,8 @@ class OrderingNode(Node):
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
         self.create_subscription(Image, LEFT_MASK, lambda m: self._on_mask("left", m), SENSOR_DATA_QOS)
         self.create_subscription(Image, RIGHT_MASK, lambda m: self._on_mask("right", m), SENSOR_DATA_QOS)
-        # Runs only while a pair waits for its low masks (reset then, cancelled when none waits).
-        wait_s = self.schedule.low_mask_wait_s
-        self._low_mask_timer = self.create_timer(max(wait_s, 0.001), self._order_overdue)
+        # Runs only while a pair waits for its low masks (see _arm_low_mask_timer).
+        self._low_mask_timer = self.create_timer(1.0, self._order_overdue)
         self._low_mask_timer.cancel()
         if self.use_low_masks:
             self.create_subscription(
@@ -219,20 +218,28 @@ class OrderingNode(Node):
         if stamp_ns is None:
             return
         self._order(self.schedule.add_mask(side, stamp_ns, message))
-        if self.schedule.waiting:  # this pair waits for its low masks
-            self._low_mask_timer.reset()
+        self._arm_low_mask_timer()
 
     def _order_overdue(self) -> None:
         """Order, without their low masks, the pairs that waited for them long enough."""
         self._order(self.schedule.overdue())
-        if not self.schedule.waiting:
+        self._arm_low_mask_timer()
+
+    def _arm_low_mask_timer(self) -> None:
+        """Fire at the deadline of the oldest pair waiting for its low masks; idle when none waits."""
+        remaining_s = self.schedule.seconds_to_deadline()
+        if remaining_s is None:
             self._low_mask_timer.cancel()
+        else:
+            self._low_mask_timer.timer_period_ns = max(1000, int(remaining_s * 1e9))
+            self._low_mask_timer.reset()
 
     def _on_low_mask(self, side: str, message: Image) -> None:
         stamp_ns = stamp_or_drop(message, self._warnings.warn, f"{side} low mask")
         if stamp_ns is None:
             return
         self._order(self.schedule.add_low_mask(side, stamp_ns, message))
+        self._arm_low_mask_timer()
 
     # ------------------------------------------------------------------ one stereo pair
 

@@ -78,6 +78,11 @@ class MaskPairSchedule(Generic[T]):
             return deadline
         return None
 
+    def seconds_to_deadline(self) -> float | None:
+        """Seconds until :attr:`next_deadline` (0 when it passed), or None when no pair waits."""
+        deadline = self.next_deadline
+        return None if deadline is None else max(0.0, deadline - self._clock())
+
     def add_mask(self, side: str, stamp_ns: int, mask: T) -> list[ReadyPair[T]]:
         """Take one mask; the pairs ready now (those that waited, then this one's, if complete)."""
         paired = self.masks.add(side, stamp_ns, mask)

@@ -104,3 +104,17 @@ def test_bad_settings_are_refused():
         MaskPairSchedule(10, -0.1)
     with pytest.raises(ValueError, match="capacity"):
         MaskPairSchedule(0, 0.1)
+
+
+def test_seconds_to_deadline_follow_the_oldest_waiting_pair():
+    s, clock = schedule(wait_s=0.1)
+    assert s.seconds_to_deadline() is None
+    low_masks(s, 1)
+    masks(s, 1)
+    masks(s, 2)
+    clock.now += 0.04
+    assert s.seconds_to_deadline() == pytest.approx(0.06)
+    assert s.add_mask("left", 3, "L3") == []  # an incomplete pair does not move the deadline
+    assert s.seconds_to_deadline() == pytest.approx(0.06)
+    clock.now += 1.0
+    assert s.seconds_to_deadline() == 0.0
