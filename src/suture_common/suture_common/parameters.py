@@ -143,6 +143,19 @@ def dataclass_parameters(
     return specs
 
 
+def field_parameter(cls: type, name: str) -> ParameterSpec:
+    """The :class:`ParameterSpec` of one field of the dataclass ``cls`` (default: the field's).
+
+    For a node that exposes some fields of its core's dataclasses; a field without
+    :func:`described` metadata is a TypeError.
+    """
+    field = {f.name: f for f in dataclasses.fields(cls)}[name]
+    if PARAMETER_METADATA not in field.metadata:
+        raise TypeError(f"{cls.__name__}.{name} has no parameter description (described())")
+    description, value_range = field.metadata[PARAMETER_METADATA]
+    return ParameterSpec(name, field.default, description, value_range)
+
+
 def spec_table(specs: Iterable[ParameterSpec]) -> dict[str, ParameterSpec]:
     """Specs by name; a name given twice is a ValueError."""
     table: dict[str, ParameterSpec] = {}

@@ -15,6 +15,7 @@ from suture_common.parameters import (
     ParameterValueError,
     dataclass_parameters,
     described,
+    field_parameter,
     spec_table,
 )
 from suture_common.ros import declare_parameters
@@ -80,6 +81,9 @@ def test_dataclass_fields_carry_their_parameters():
 
     with pytest.raises(TypeError, match="Undescribed.gain has no parameter description"):
         dataclass_parameters(Undescribed)
+    assert field_parameter(Settings, "gain") == specs[0]
+    with pytest.raises(TypeError, match="Undescribed.gain"):
+        field_parameter(Undescribed, "gain")
 
 
 def test_descriptors_carry_description_type_and_range(context):

@@ -53,7 +53,7 @@ from suture_common.messages import (
     polygon_to_array,
     pose_message,
 )
-from suture_common.parameters import ParameterSpec, spec_table
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
 from suture_common.ros import (
     RELIABLE_QOS,
     SENSOR_DATA_QOS,
@@ -81,69 +81,52 @@ from suture_common.topics import (
 )
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import ImagePairError, ReconstructionError
+from suture_reconstruction.pairing import PairingParams
 from suture_reconstruction.photometric import check_image_pair
+from suture_reconstruction.shape_graph import ShapeGraphParams
 
 NODE_NAME = "reconstruction_node"
 IMAGE_ENCODINGS = ("rgb8", "bgr8", "mono8")
 
+_CORE_PARAMETERS = (
+    (ReconstructionParams, "grasp_arc_length"),
+    (ShapeGraphParams, "tau_l"),
+    (ShapeGraphParams, "tau_step"),
+    (ShapeGraphParams, "upsilon3"),
+    (ShapeGraphParams, "sigma1"),
+    (ShapeGraphParams, "nu1"),
+    (ReconstructionParams, "vertex_step"),
+    (PairingParams, "min_depth"),
+    (PairingParams, "max_depth"),
+    (ReconstructionParams, "min_points"),
+    (ReconstructionParams, "curve_smoothing"),
+    (ReconstructionParams, "path_step"),
+)
+"""The fields of the core's parameters the node exposes, each under its own name."""
+
 PARAMETERS: dict[str, ParameterSpec] = spec_table(
-    ParameterSpec(name, default, description, value_range)
-    for name, default, description, value_range in (
-        ("grasp_arc_length", 0.05, "arc length (m) from the cut tip to the grasp point", (0.0, 1.0)),
-        ("tau_l", 0.001, "Algorithm 1: initial edge length limit tau_L (m)", (0.0, 0.1)),
-        (
-            "tau_step",
-            0.0005,
-            "Algorithm 1: growth step of tau_L (m; the paper's 0.5, read as 0.5 mm)",
-            (0.0, 0.1),
-        ),
-        ("upsilon3", 0.001, "Algorithm 1: radius Upsilon_3 (m) of the density sphere of Eq. 9", (0.0, 0.1)),
-        ("sigma1", 10.0, "Algorithm 1: steepness sigma_1 (neighbour count) of Eq. 9", (0.0, 1000.0)),
-        ("nu1", 0.001, "Algorithm 1: nu_1 (m) of Eq. 9", (0.0, 0.1)),
-        (
-            "vertex_step",
-            0.0001,
-            "spacing (m) of the vertices given to Algorithm 1 (unit of |i - t| in Eq. 11; > 0)",
-            (0.0, 0.01),
-        ),
-        ("min_depth", 0.045, "nearest depth (m) of a pair: the largest disparity accepted", (0.0, 100.0)),
-        ("max_depth", 0.165, "farthest depth (m) of a pair: the smallest disparity accepted", (0.0, 100.0)),
-        ("min_points", 8, "fewest points a sequence must have", (3, 1_000_000)),
-        ("curve_smoothing", 0.001, "smoothing length (m) of the 3D curve", (0.0, 0.1)),
-        ("path_step", 0.0005, "spacing (m) of the published path (> 0)", (0.0, 0.1)),
-        ("frame_id", LEFT_FRAME, "frame of the outputs (the left camera optical frame)", None),
-        (
+    (
+        *(field_parameter(cls, name) for cls, name in _CORE_PARAMETERS),
+        ParameterSpec("frame_id", LEFT_FRAME, "frame of the outputs (the left camera optical frame)"),
+        ParameterSpec(
             "buffer_size",
             30,
             "unmatched stamps kept per side while waiting for the other sequence",
             (1, 10_000),
         ),
-        (
+        ParameterSpec(
             "use_images",
             True,
             "refine the disparity with the rectified images (subscribes /stereo/*/image_rect)",
-            None,
         ),
-        ("image_buffer_size", 10, "stereo image pairs kept while their sequences are on the way", (1, 1000)),
-        ("log_throttle", 5.0, "seconds between two warnings for the same reason", (0.0, 3600.0)),
+        ParameterSpec(
+            "image_buffer_size", 10, "stereo image pairs kept while their sequences are on the way", (1, 1000)
+        ),
+        ParameterSpec("log_throttle", 5.0, "seconds between two warnings for the same reason", (0.0, 3600.0)),
     )
 )
-"""Every parameter of the node, by name."""
-
-_CORE_PARAMETERS = (
-    "grasp_arc_length",
-    "tau_l",
-    "tau_step",
-    "upsilon3",
-    "sigma1",
-    "nu1",
-    "vertex_step",
-    "min_depth",
-    "max_depth",
-    "min_points",
-    "curve_smoothing",
-    "path_step",
-)
+"""Every parameter of the node, by name: the core's (descriptions and ranges beside their
+dataclass fields) and the node's own."""
 
 
 class ReconstructionNode(Node):
@@ -152,7 +135,7 @@ class ReconstructionNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         values = declare_parameters(self, PARAMETERS.values())
-        core = {name: values[name] for name in _CORE_PARAMETERS}
+        core = {name: values[name] for _, name in _CORE_PARAMETERS}
         self.params = ReconstructionParams().replace(**core)  # ValueError on bad values
         self.frame_id = str(values["frame_id"])
         self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(int(values["buffer_size"]))
