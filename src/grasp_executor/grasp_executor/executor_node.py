@@ -20,7 +20,7 @@ messages and parameters; every decision is in the ROS-free core.
 from __future__ import annotations
 
 import contextlib
-import math
+import dataclasses
 import signal
 import sys
 from collections.abc import Sequence
@@ -52,7 +52,7 @@ from grasp_executor.planning import GraspConfig
 from grasp_executor.safety import SafetyGate, SafetyLimits
 from suture_common import topics
 from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
-from suture_common.parameters import ParameterSpec, Range, spec_table
+from suture_common.parameters import ParameterSpec, Range, field_parameter, spec_table
 from suture_common.ros import RELIABLE_QOS, ThrottledWarnings, declare_parameters, to_rclpy
 from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
 
@@ -65,13 +65,20 @@ ABORT = "/grasp_executor/abort"
 
 BACKENDS = ("dry_run", "dvrk", "ur")
 
-PI = math.pi
-
 
 def _spec(name: str, default: Any, description: str, value_range: Range | None = None) -> ParameterSpec:
     """Numbers and lists of numbers may be given as integers or doubles (the node converts them)."""
-    numeric = not isinstance(default, (str, bool))
-    return ParameterSpec(name, default, description, value_range, dynamic_typing=numeric)
+    return ParameterSpec(name, default, description, value_range, dynamic_typing=_numeric(default))
+
+
+def _core(cls: type, field_name: str, name: str, default: Any = dataclasses.MISSING) -> ParameterSpec:
+    """A parameter that is a field of the core's configuration (description and range beside it)."""
+    spec = field_parameter(cls, field_name, name, default)
+    return dataclasses.replace(spec, dynamic_typing=_numeric(spec.default))
+
+
+def _numeric(default: Any) -> bool:
+    return not isinstance(default, (str, bool))
 
 
 PARAMETERS: dict[str, ParameterSpec] = spec_table(
@@ -91,44 +98,17 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         ),
         _spec("hand_eye.translation", [0.0, 0.0, 0.0], "T_base_camera translation [x, y, z] (m)"),
         _spec("hand_eye.quaternion", [0.0, 0.0, 0.0, 1.0], "T_base_camera rotation [x, y, z, w]"),
-        _spec(
-            "tool_rotation",
-            [0.0, 0.0, 0.0, 1.0],
-            "fixed rotation [x, y, z, w] from the grasp frame to the commanded tool frame",
-        ),
-        _spec(
-            "workspace.min",
-            [-0.15, -0.15, 0.0],
-            "lower corner [x, y, z] of the box every commanded position must lie in (m, base frame)",
-        ),
-        _spec(
-            "workspace.max",
-            [0.15, 0.15, 0.3],
-            "upper corner [x, y, z] of the box every commanded position must lie in (m, base frame)",
-        ),
-        _spec(
-            "max_step",
-            0.05,
-            "largest distance from the measured tool position to any commanded position (m; > 0)",
-            (0.0, 2.0),
-        ),
-        _spec(
-            "max_age",
-            1.0,
-            "largest age of the grasp pose (or path) at execute, either way (s; > 0)",
-            (0.0, 3600.0),
-        ),
-        _spec("approach_offset", 0.01, "pre-grasp distance back along the approach axis (m)", (0.0, 0.5)),
-        _spec(
-            "lift_distance",
-            0.01,
-            "lift distance back along the approach axis after closing the jaw (m)",
-            (0.0, 0.5),
-        ),
-        _spec("jaw.open", 0.8, "jaw angle before the grasp (rad)", (-PI, PI)),
-        _spec("jaw.close", -0.1, "jaw angle of the grasp (rad; dVRK: negative squeezes)", (-PI, PI)),
-        _spec("jaw.min", -0.35, "smallest jaw angle commanded; below it is refused (rad)", (-PI, PI)),
-        _spec("jaw.max", 1.4, "largest jaw angle commanded; above it is refused (rad)", (-PI, PI)),
+        _core(GraspConfig, "tool_rotation", "tool_rotation"),
+        _core(SafetyLimits, "workspace_min", "workspace.min", [-0.15, -0.15, 0.0]),
+        _core(SafetyLimits, "workspace_max", "workspace.max", [0.15, 0.15, 0.3]),
+        _core(SafetyLimits, "max_step", "max_step"),
+        _core(SafetyLimits, "max_age", "max_age"),
+        _core(GraspConfig, "approach_offset", "approach_offset"),
+        _core(GraspConfig, "lift_distance", "lift_distance"),
+        _core(GraspConfig, "jaw_open", "jaw.open"),
+        _core(GraspConfig, "jaw_close", "jaw.close"),
+        _core(SafetyLimits, "jaw_min", "jaw.min"),
+        _core(SafetyLimits, "jaw_max", "jaw.max"),
         _spec(
             "motion_timeout",
             10.0,
@@ -149,24 +129,11 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         _spec("ur.speed", 0.05, "moveL tool speed (m/s)", (0.0, 3.0)),
         _spec("ur.acceleration", 0.2, "moveL tool acceleration (m/s²)", (0.0, 20.0)),
         _spec("ur.stop_deceleration", 2.0, "stopL deceleration on abort (m/s²)", (0.0, 20.0)),
-        _spec("keypoints.count", 10, "number of key points visited along the path", (1, 10_000)),
-        _spec(
-            "keypoints.approach_offset",
-            0.01,
-            "key points: approach and retreat distance along the tool z axis (m)",
-            (0.0, 0.5),
-        ),
-        _spec("keypoints.dwell", 1.0, "key points: time at each touch point (s)", (0.0, 3600.0)),
-        _spec(
-            "keypoints.orientation_from_robot",
-            True,
-            "key points: keep the tool orientation measured at the start",
-        ),
-        _spec(
-            "keypoints.orientation",
-            [1.0, 0.0, 0.0, 0.0],
-            "key points: tool orientation [x, y, z, w] in the base frame when not from the robot",
-        ),
+        _core(KeypointConfig, "count", "keypoints.count"),
+        _core(KeypointConfig, "approach_offset", "keypoints.approach_offset"),
+        _core(KeypointConfig, "dwell", "keypoints.dwell"),
+        _core(KeypointConfig, "orientation_from_robot", "keypoints.orientation_from_robot"),
+        _core(KeypointConfig, "orientation", "keypoints.orientation"),
         _spec(
             "keypoints.log_file",
             "",
@@ -174,7 +141,8 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         ),
     )
 )
-"""Every parameter (SI units: metres, radians, seconds; quaternions x y z w)."""
+"""Every parameter (SI units: metres, radians, seconds; quaternions x y z w); those of the core's
+configuration take their description and range from its dataclass fields."""
 
 DEFAULTS: dict[str, Any] = {name: spec.default for name, spec in PARAMETERS.items()}
 """Every parameter and its default."""

@@ -143,17 +143,30 @@ def dataclass_parameters(
     return specs
 
 
-def field_parameter(cls: type, name: str) -> ParameterSpec:
-    """The :class:`ParameterSpec` of one field of the dataclass ``cls`` (default: the field's).
+def field_parameter(
+    cls: type,
+    field_name: str,
+    name: str | None = None,
+    default: Any = dataclasses.MISSING,
+    dynamic_typing: bool = False,
+) -> ParameterSpec:
+    """The :class:`ParameterSpec` of one field of the dataclass ``cls``, for a node that exposes
+    some fields of its core's dataclasses.
 
-    For a node that exposes some fields of its core's dataclasses; a field without
-    :func:`described` metadata is a TypeError.
+    ``name`` (default: the field's) is the parameter's name; ``default`` (default: the field's,
+    a tuple as a list) its default. A field without :func:`described` metadata is a TypeError.
     """
-    field = {f.name: f for f in dataclasses.fields(cls)}[name]
+    field = {f.name: f for f in dataclasses.fields(cls)}[field_name]
     if PARAMETER_METADATA not in field.metadata:
-        raise TypeError(f"{cls.__name__}.{name} has no parameter description (described())")
+        raise TypeError(f"{cls.__name__}.{field_name} has no parameter description (described())")
     description, value_range = field.metadata[PARAMETER_METADATA]
-    return ParameterSpec(name, field.default, description, value_range)
+    if default is dataclasses.MISSING:
+        default = field.default
+    if default is dataclasses.MISSING:
+        raise TypeError(f"{cls.__name__}.{field_name} has no default; give the parameter's")
+    if isinstance(default, tuple):
+        default = list(default)
+    return ParameterSpec(name or field_name, default, description, value_range, dynamic_typing)
 
 
 def spec_table(specs: Iterable[ParameterSpec]) -> dict[str, ParameterSpec]:
