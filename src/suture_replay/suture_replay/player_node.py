@@ -60,9 +60,9 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from suture_common.parameters import ParameterSpec, spec_table
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
 from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, declare_parameters, from_cdr, message_class
-from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
+from suture_common.topics import TOPIC_TYPES
 from suture_replay.node_main import run_until_stopped
 from suture_replay.replay import (
     IMAGE_TYPES,
@@ -91,37 +91,14 @@ PUBLISH_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=
 """What ``ros2 bag play`` offers by default: reliable, keep last 10, volatile."""
 
 PARAMETERS: dict[str, ParameterSpec] = spec_table(
-    # dynamic typing: numbers may be given as ints or doubles, ``topics`` as a single string
-    ParameterSpec(name, default, description, value_range, dynamic_typing=True)
-    for name, default, description, value_range in (
-        ("bag", "", "rosbag2 MCAP directory or .mcap file to replay (required)", None),
-        ("topics", list(INPUT_TOPICS), "topics to replay; those absent from the bag are skipped", None),
-        ("rate", 1.0, "speed factor of the recorded timing (2.0 = twice as fast); > 0", (0.0, 1000.0)),
-        (
-            "wait_for_output",
-            False,
-            "publish the next frame once the output of the previous one arrived (or wait_timeout)",
-            None,
-        ),
-        ("output_topic", "/suture/grasp_pose", "output matched to frames by header stamp for latency", None),
-        ("wait_timeout", 2.0, "seconds to wait for a frame's output in wait_for_output mode", (0.0, 3600.0)),
-        (
-            "loops",
-            1,
-            "times to replay the bag; later loops shift stamps by the bag span + one period",
-            (1, 1_000_000),
-        ),
-        (
-            "start_timeout",
-            15.0,
-            "seconds to wait for image subscribers and an output publisher",
-            (0.0, 3600.0),
-        ),
-        ("linger", 1.0, "seconds to keep receiving outputs after the last frame", (0.0, 3600.0)),
-        ("report", "", "JSON report file to write at the end; empty: none", None),
+    # dynamic typing: numbers may be given as ints or doubles, ``topics`` as a single string;
+    # ``bag`` is required: empty by default
+    field_parameter(
+        PlayerSettings, name, default="" if name == "bag" else dataclasses.MISSING, dynamic_typing=True
     )
+    for name in (field.name for field in dataclasses.fields(PlayerSettings))
 )
-"""Every parameter, by name."""
+"""Every parameter, by name: the fields of :class:`PlayerSettings` (descriptions and ranges there)."""
 
 
 class PlayerNode(Node):

@@ -34,9 +34,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from suture_common.bag_io import BagWriter
-from suture_common.parameters import ParameterSpec, spec_table
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
 from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, declare_parameters, message_class
-from suture_common.topics import PIPELINE_OUTPUT_TOPICS
 from suture_replay.node_main import run_until_stopped
 from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 
@@ -57,18 +56,11 @@ RECORD_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=
 
 PARAMETERS: dict[str, ParameterSpec] = spec_table(
     (
-        ParameterSpec(
-            "output", "", "rosbag2 directory to create (required; must not exist)", dynamic_typing=True
-        ),
-        ParameterSpec(
-            "topics",
-            list(PIPELINE_OUTPUT_TOPICS),
-            "topics to record (those of docs/interfaces.md only); a single name is a list of one",
-            dynamic_typing=True,
-        ),
+        field_parameter(RecorderSettings, "output", default="", dynamic_typing=True),  # required
+        field_parameter(RecorderSettings, "topics", dynamic_typing=True),
     )
 )
-"""Every parameter, by name."""
+"""Every parameter, by name: fields of :class:`RecorderSettings` (descriptions there)."""
 
 
 class RecorderNode(Node):
