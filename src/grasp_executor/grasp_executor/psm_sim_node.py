@@ -43,8 +43,6 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
 )
 """Parameters: metres, radians, seconds, Hz; orientation as quaternion x y z w."""
 
-DEFAULTS: dict[str, Any] = {name: spec.default for name, spec in PARAMETERS.items()}
-
 
 class PsmSimNode(Node):
     """Publishes the simulated arm's state and follows CRTK goals."""
