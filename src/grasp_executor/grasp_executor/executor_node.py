@@ -11,13 +11,15 @@ refused: <reason>, fault: <reason>). Services (std_srvs/Trigger):
 final state text. Setting the parameter ``armed`` at run time arms or disarms
 (disarming aborts a running motion); every other parameter is read at start-up.
 
-Parameters, with defaults and units, are in :data:`DEFAULTS` and documented in
-``config/executor.yaml`` and ``docs/executor.md``. The node only converts
+Parameters, with defaults, units, descriptions and ranges, are in :data:`PARAMETERS`
+(``ros2 param describe``, ``docs/nodes.md``); ``config/executor.yaml`` and ``docs/executor.md``
+explain them. The node only converts
 messages and parameters; every decision is in the ROS-free core.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -25,7 +27,7 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -45,7 +47,15 @@ from grasp_executor.planning import GraspConfig
 from grasp_executor.safety import SafetyGate, SafetyLimits
 from suture_common import topics
 from suture_common.messages import ns_from_stamp, path_to_array, pose_message, pose_to_arrays
-from suture_common.ros import RELIABLE_QOS, ThreadPoolExecutor, ThrottledWarnings, run_node, to_rclpy
+from suture_common.parameters import ParameterSpec, Range, field_parameter, spec_table
+from suture_common.ros import (
+    RELIABLE_QOS,
+    ThreadPoolExecutor,
+    ThrottledWarnings,
+    declare_parameters,
+    run_node,
+    to_rclpy,
+)
 from suture_common.topics import GRASP_POSE, LEFT_FRAME, PATH
 
 NODE_NAME = "grasp_executor"
@@ -57,41 +67,87 @@ ABORT = "/grasp_executor/abort"
 
 BACKENDS = ("dry_run", "dvrk", "ur")
 
-DEFAULTS: dict[str, Any] = {
-    "backend": "dry_run",
-    "armed": False,
-    "camera_frame": LEFT_FRAME,
-    "base_frame": "base",
-    "hand_eye.file": "",
-    "hand_eye.translation": [0.0, 0.0, 0.0],
-    "hand_eye.quaternion": [0.0, 0.0, 0.0, 1.0],
-    "tool_rotation": [0.0, 0.0, 0.0, 1.0],
-    "workspace.min": [-0.15, -0.15, 0.0],
-    "workspace.max": [0.15, 0.15, 0.3],
-    "max_step": 0.05,
-    "max_age": 1.0,
-    "approach_offset": 0.01,
-    "lift_distance": 0.01,
-    "jaw.open": 0.8,
-    "jaw.close": -0.1,
-    "jaw.min": -0.35,
-    "jaw.max": 1.4,
-    "motion_timeout": 10.0,
-    "position_tolerance": 0.002,
-    "dvrk.namespace": "/PSM1",
-    "dvrk.measured_timeout": 0.5,
-    "ur.host": "",
-    "ur.speed": 0.05,
-    "ur.acceleration": 0.2,
-    "ur.stop_deceleration": 2.0,
-    "keypoints.count": 10,
-    "keypoints.approach_offset": 0.01,
-    "keypoints.dwell": 1.0,
-    "keypoints.orientation_from_robot": True,
-    "keypoints.orientation": [1.0, 0.0, 0.0, 0.0],
-    "keypoints.log_file": "",
-}
-"""Every parameter and its default (SI units: metres, radians, seconds; quaternions x y z w)."""
+
+def _spec(name: str, default: Any, description: str, value_range: Range | None = None) -> ParameterSpec:
+    """Numbers and lists of numbers may be given as integers or doubles (the node converts them)."""
+    return ParameterSpec(name, default, description, value_range, dynamic_typing=_numeric(default))
+
+
+def _core(cls: type, field_name: str, name: str, default: Any = dataclasses.MISSING) -> ParameterSpec:
+    """A parameter that is a field of the core's configuration (description and range beside it)."""
+    spec = field_parameter(cls, field_name, name, default)
+    return dataclasses.replace(spec, dynamic_typing=_numeric(spec.default))
+
+
+def _numeric(default: Any) -> bool:
+    return not isinstance(default, (str, bool))
+
+
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    (
+        _spec("backend", "dry_run", "robot interface: dry_run (moves nothing), dvrk or ur"),
+        _spec(
+            "armed",
+            False,
+            "motion is refused unless true; may change at run time; false aborts a running motion",
+        ),
+        _spec("camera_frame", LEFT_FRAME, "frame the grasp poses and paths must be in"),
+        _spec("base_frame", "base", "robot base frame of the commands (dVRK: the frame of measured_cp)"),
+        _spec(
+            "hand_eye.file",
+            "",
+            "hand-eye YAML file; when set it replaces hand_eye.translation and hand_eye.quaternion",
+        ),
+        _spec("hand_eye.translation", [0.0, 0.0, 0.0], "T_base_camera translation [x, y, z] (m)"),
+        _spec("hand_eye.quaternion", [0.0, 0.0, 0.0, 1.0], "T_base_camera rotation [x, y, z, w]"),
+        _core(GraspConfig, "tool_rotation", "tool_rotation"),
+        _core(SafetyLimits, "workspace_min", "workspace.min", [-0.15, -0.15, 0.0]),
+        _core(SafetyLimits, "workspace_max", "workspace.max", [0.15, 0.15, 0.3]),
+        _core(SafetyLimits, "max_step", "max_step"),
+        _core(SafetyLimits, "max_age", "max_age"),
+        _core(GraspConfig, "approach_offset", "approach_offset"),
+        _core(GraspConfig, "lift_distance", "lift_distance"),
+        _core(GraspConfig, "jaw_open", "jaw.open"),
+        _core(GraspConfig, "jaw_close", "jaw.close"),
+        _core(SafetyLimits, "jaw_min", "jaw.min"),
+        _core(SafetyLimits, "jaw_max", "jaw.max"),
+        _spec(
+            "motion_timeout",
+            10.0,
+            "longest time of one motion; then the robot is told to stop (s)",
+            (0.0, 3600.0),
+        ),
+        _spec(
+            "position_tolerance",
+            0.002,
+            "a move is done when the measured position is this close to the goal (m)",
+            (0.0, 0.1),
+        ),
+        _spec("dvrk.namespace", "/PSM1", "CRTK namespace of the dVRK arm"),
+        _spec(
+            "dvrk.measured_timeout", 0.5, "no measured_cp for this long is a lost connection (s)", (0.0, 60.0)
+        ),
+        _spec("ur.host", "", "UR controller IP address or host name (required for backend ur)"),
+        _spec("ur.speed", 0.05, "moveL tool speed (m/s)", (0.0, 3.0)),
+        _spec("ur.acceleration", 0.2, "moveL tool acceleration (m/s²)", (0.0, 20.0)),
+        _spec("ur.stop_deceleration", 2.0, "stopL deceleration on abort (m/s²)", (0.0, 20.0)),
+        _core(KeypointConfig, "count", "keypoints.count"),
+        _core(KeypointConfig, "approach_offset", "keypoints.approach_offset"),
+        _core(KeypointConfig, "dwell", "keypoints.dwell"),
+        _core(KeypointConfig, "orientation_from_robot", "keypoints.orientation_from_robot"),
+        _core(KeypointConfig, "orientation", "keypoints.orientation"),
+        _spec(
+            "keypoints.log_file",
+            "",
+            "CSV file to append the commanded and measured key points to (empty: log only)",
+        ),
+    )
+)
+"""Every parameter (SI units: metres, radians, seconds; quaternions x y z w); those of the core's
+configuration take their description and range from its dataclass fields."""
+
+DEFAULTS: dict[str, Any] = {name: spec.default for name, spec in PARAMETERS.items()}
+"""Every parameter and its default."""
 
 _RUNTIME_PARAMETERS = ("armed",)
 
@@ -108,9 +164,10 @@ class ExecutorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        for name, default in DEFAULTS.items():
-            numeric = not isinstance(default, (str, bool))
-            self.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=numeric))
+        try:
+            declare_parameters(self, PARAMETERS.values())
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
         self._state_pub = self.create_publisher(String, STATE, RELIABLE_QOS)
         self._target_pub = self.create_publisher(PoseStamped, TARGET_POSE, RELIABLE_QOS)
         self._keypoint_log = str(self._value("keypoints.log_file"))

@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from grasp_executor.geometry import Pose
 from grasp_executor.planning import Dwell, Move, Plan, Step
+from suture_common.parameters import described
 
 
 def evenly_spaced_points(path: np.ndarray, count: int) -> np.ndarray:
@@ -53,12 +54,31 @@ def evenly_spaced_points(path: np.ndarray, count: int) -> np.ndarray:
 class KeypointConfig:
     """Parameters of key-point mode; metres, seconds, quaternion (x, y, z, w) in the base frame."""
 
-    count: int = 10
-    """Number of key points (a float with an integer value is accepted and stored as int)."""
-    approach_offset: float = 0.01
-    dwell: float = 1.0
-    orientation_from_robot: bool = True
-    orientation: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    count: int = field(
+        default=10,
+        metadata=described(
+            "number of key points visited along the path (a float with an integer value is accepted)",
+            (1, 10_000),
+        ),
+    )
+    approach_offset: float = field(
+        default=0.01,
+        metadata=described("key points: approach and retreat distance along the tool z axis (m)", (0.0, 0.5)),
+    )
+    dwell: float = field(
+        default=1.0,
+        metadata=described("key points: time at each touch point (s)", (0.0, 3600.0)),
+    )
+    orientation_from_robot: bool = field(
+        default=True,
+        metadata=described("key points: keep the tool orientation measured at the start"),
+    )
+    orientation: tuple[float, float, float, float] = field(
+        default=(1.0, 0.0, 0.0, 0.0),
+        metadata=described(
+            "key points: tool orientation [x, y, z, w] in the base frame when not from the robot"
+        ),
+    )
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.count) and int(self.count) == self.count and self.count >= 1):

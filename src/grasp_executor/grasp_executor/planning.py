@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from grasp_executor.geometry import Pose, quaternion_multiply
+from suture_common.parameters import described
 
 
 @dataclass(frozen=True)
@@ -83,11 +84,28 @@ class Plan:
 class GraspConfig:
     """Parameters of :func:`plan_grasp`; metres and radians."""
 
-    approach_offset: float = 0.01
-    lift_distance: float = 0.01
-    jaw_open: float = 0.8
-    jaw_close: float = -0.1
-    tool_rotation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    approach_offset: float = field(
+        default=0.01,
+        metadata=described("pre-grasp distance back along the approach axis (m)", (0.0, 0.5)),
+    )
+    lift_distance: float = field(
+        default=0.01,
+        metadata=described(
+            "lift distance back along the approach axis after closing the jaw (m)", (0.0, 0.5)
+        ),
+    )
+    jaw_open: float = field(
+        default=0.8,
+        metadata=described("jaw angle before the grasp (rad)", (-math.pi, math.pi)),
+    )
+    jaw_close: float = field(
+        default=-0.1,
+        metadata=described("jaw angle of the grasp (rad; dVRK: negative squeezes)", (-math.pi, math.pi)),
+    )
+    tool_rotation: tuple[float, float, float, float] = field(
+        default=(0.0, 0.0, 0.0, 1.0),
+        metadata=described("fixed rotation [x, y, z, w] from the grasp frame to the commanded tool frame"),
+    )
 
     def __post_init__(self) -> None:
         for name in ("approach_offset", "lift_distance"):

@@ -11,12 +11,12 @@ A goal that is NaN, not a unit quaternion, or in another non-empty frame than
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Any
 
 from geometry_msgs.msg import PoseStamped
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Header
@@ -24,19 +24,23 @@ from std_msgs.msg import Bool, Header
 from grasp_executor.geometry import Pose
 from grasp_executor.psm_sim import KinematicPsm
 from suture_common.messages import pose_message, pose_to_arrays
-from suture_common.ros import RELIABLE_QOS, run_node, to_rclpy
+from suture_common.parameters import ParameterSpec, spec_table
+from suture_common.ros import RELIABLE_QOS, declare_parameters, run_node, to_rclpy
 
-DEFAULTS: dict[str, Any] = {
-    "namespace": "/PSM1",
-    "frame_id": "base",
-    "rate": 100.0,
-    "linear_speed": 0.05,
-    "angular_speed": 1.0,
-    "jaw_speed": 1.0,
-    "initial_position": [0.0, 0.0, 0.1],
-    "initial_orientation": [0.0, 0.0, 0.0, 1.0],
-    "initial_jaw": 0.0,
-}
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    ParameterSpec(name, default, description, value_range, dynamic_typing=not isinstance(default, str))
+    for name, default, description, value_range in (
+        ("namespace", "/PSM1", "CRTK namespace of the simulated arm", None),
+        ("frame_id", "base", "frame of measured_cp and of the goals accepted", None),
+        ("rate", 100.0, "rate of measured_cp and jaw/measured_js (Hz; > 0)", (0.0, 10_000.0)),
+        ("linear_speed", 0.05, "tool speed along a trajectory (m/s)", (0.0, 10.0)),
+        ("angular_speed", 1.0, "tool rotation speed along a trajectory (rad/s)", (0.0, 100.0)),
+        ("jaw_speed", 1.0, "jaw speed (rad/s)", (0.0, 100.0)),
+        ("initial_position", [0.0, 0.0, 0.1], "tool position [x, y, z] at start (m)", None),
+        ("initial_orientation", [0.0, 0.0, 0.0, 1.0], "tool orientation [x, y, z, w] at start", None),
+        ("initial_jaw", 0.0, "jaw angle at start (rad)", (-math.pi, math.pi)),
+    )
+)
 """Parameters: metres, radians, seconds, Hz; orientation as quaternion x y z w."""
 
 
@@ -45,11 +49,8 @@ class PsmSimNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("psm_sim", **kwargs)
-        for name, default in DEFAULTS.items():
-            self.declare_parameter(
-                name, default, ParameterDescriptor(dynamic_typing=not isinstance(default, str))
-            )
-        value = lambda name: self.get_parameter(name).value  # noqa: E731
+        values = declare_parameters(self, PARAMETERS.values())
+        value = values.__getitem__
         namespace = "/" + str(value("namespace")).strip("/")
         self._frame_id = str(value("frame_id"))
         start = Pose(value("initial_position"), value("initial_orientation"), self._frame_id)

@@ -24,12 +24,13 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from grasp_executor.backends.base import Backend
 from grasp_executor.geometry import Pose
+from suture_common.parameters import described
 
 _AXES = "xyz"
 
@@ -46,12 +47,36 @@ class RefusedError(Exception):
 class SafetyLimits:
     """Limits of :class:`SafetyGate`; SI units, positions in the robot base frame."""
 
-    workspace_min: tuple[float, float, float]
-    workspace_max: tuple[float, float, float]
-    max_step: float = 0.05
-    max_age: float = 1.0
-    jaw_min: float = -0.35
-    jaw_max: float = 1.4
+    workspace_min: tuple[float, float, float] = field(
+        metadata=described(
+            "lower corner [x, y, z] of the box every commanded position must lie in (m, base frame)"
+        )
+    )
+    workspace_max: tuple[float, float, float] = field(
+        metadata=described(
+            "upper corner [x, y, z] of the box every commanded position must lie in (m, base frame)"
+        )
+    )
+    max_step: float = field(
+        default=0.05,
+        metadata=described(
+            "largest distance from the measured tool position to any commanded position (m; > 0)", (0.0, 2.0)
+        ),
+    )
+    max_age: float = field(
+        default=1.0,
+        metadata=described(
+            "largest age of the grasp pose (or path) at execute, either way (s; > 0)", (0.0, 3600.0)
+        ),
+    )
+    jaw_min: float = field(
+        default=-0.35,
+        metadata=described("smallest jaw angle commanded; below it is refused (rad)", (-math.pi, math.pi)),
+    )
+    jaw_max: float = field(
+        default=1.4,
+        metadata=described("largest jaw angle commanded; above it is refused (rad)", (-math.pi, math.pi)),
+    )
 
     def __post_init__(self) -> None:
         low = np.asarray(self.workspace_min, dtype=np.float64)

@@ -157,3 +157,42 @@ def _check_view(view: str) -> str:
     if view not in ("left", "right"):
         raise ValueError(f"view must be 'left' or 'right', got {view!r}")
     return view
+
+
+class CameraInfoCache:
+    """The latest camera_info of each view and the :class:`StereoCamera` they make, built once.
+
+    The nodes give it every CameraInfo message they receive (:meth:`update`); :meth:`camera`
+    builds the stereo camera again only when a field it is made of changed.
+    """
+
+    SIDES = ("left", "right")
+
+    def __init__(self) -> None:
+        self._messages: dict[str, Any] = {}
+        self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
+
+    def update(self, side: str, message: Any) -> None:
+        """Keep ``message`` as the camera_info of ``side`` ('left' or 'right')."""
+        if side not in self.SIDES:
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        self._messages[side] = message
+
+    def missing(self) -> list[str]:
+        """The sides without camera_info yet."""
+        return [side for side in self.SIDES if side not in self._messages]
+
+    def camera(self) -> StereoCamera | None:
+        """The stereo camera of the latest pair, or None while a side has none.
+
+        Raises CameraModelError (from :meth:`StereoCamera.from_camera_info`) when the pair is
+        unusable; it is tried again on the next call.
+        """
+        if self.missing():
+            return None
+        left, right = self._messages["left"], self._messages["right"]
+        key = (tuple(left.p), tuple(right.p), left.width, left.height, right.width, right.height)
+        if self._camera is None or self._camera[0] != key:
+            self._camera = None
+            self._camera = (key, StereoCamera.from_camera_info(left, right))
+        return self._camera[1]

@@ -28,91 +28,227 @@ The choices where the paper is silent are documented in the modules that
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
+
+from suture_common.parameters import described
 
 
 @dataclass(frozen=True)
 class OrderingParams:
     """Tunable values of mask cleaning, tip localisation and the sequence search.
 
-    Pixel lengths are for a 640 px wide image (see the module docstring).
+    Pixel lengths are for a 640 px wide image (see the module docstring). Each field's
+    metadata holds its description and range as a ROS parameter of ordering_node
+    (:func:`suture_common.parameters.described`).
     """
 
-    #: Υ: radius of the Region of Interest around the current vertex (px).
-    roi_radius_px: float = 24.0
-    #: Inner radius of the RoI: the nearest active nodes lie this far from the vertex, so the
-    #: search advances by about this much per step (px).
-    step_radius_px: float = 8.0
-    #: Centreline nodes within this distance of the path already traversed are detected (px).
-    detect_radius_px: float = 2.5
-    #: The "zone" for the out-of-zone count O is the mask dilated by this many pixels (int).
-    zone_margin_px: int = 1
-    #: μ of Eq. (5): a small positive gain; O = 0 costs log(μ).
-    mu: float = 0.01
-    #: R1, R2, R3 of Eq. (7): ranges of ε1 (out-of-zone), ε2 (distance), ε3 (turning angle).
-    eps1_range: tuple[float, float] = (1.0, 5.0)
-    eps2_range: tuple[float, float] = (0.1, 0.5)
-    eps3_range: tuple[float, float] = (0.02, 0.1)
-    #: Values per range in the tuning grid of Eq. (7) (grid_size**3 parameter sets; 1: midpoints).
-    grid_size: int = 3
-    #: τ_O = tau_o_factor x Υ (px): candidates with O >= τ_O are not admissible.
-    tau_o_factor: float = 2.6
-    #: τ_V: candidates turning by δ >= τ_V are not admissible (rad).
-    tau_v: float = 2.0 * math.pi / 3.0
-    #: Largest share of the image a mask may cover: a thread covers a few percent; more is noise,
-    #: a wrong threshold or encoding, and ordering it would take minutes (InvalidInputError).
-    max_mask_fraction: float = 0.15
-    #: Measure δ from the direction predicted by the thread's curvature (the last chord turned
-    #: by the last turn) instead of the last chord alone (the paper's literal Eq. 4).
-    curvature_prediction: bool = True
-    #: Largest turn the curvature prediction extrapolates (rad).
-    max_predicted_turn: float = math.radians(45.0)
-    #: A candidate whose chord leaves the zone (O > 0, a bridged gap) may turn at most this much,
-    #: and the thread beyond it must continue within this angle of the chord (rad).
-    bridge_turn_max: float = math.radians(45.0)
-    #: ... and bend like one smooth arc: the turns into and out of the chord may differ by at most
-    #: this (rad).
-    bridge_bend_max: float = math.radians(20.0)
-    #: At a junction where every branch ahead bends by at least this much, the thread ends (rad).
-    junction_bend_max: float = math.radians(30.0)
-    #: At a junction, a branch must bend this much less than the next to be chosen from afar (rad).
-    junction_tie: float = math.radians(8.0)
-    #: A step whose straightest near node turns by more than this is examined as a junction too:
-    #: where a strand leaves the thread at a shallow angle (a small loop entered tangentially)
-    #: the two run merged past the nearest circle, and the near node may be the other strand (rad).
-    sharp_step_turn: float = math.radians(32.0)
-    #: At a junction with four arms, the strands must meet at least at this angle to be taken as
-    #: crossing (the thread then goes straight across); below it they are taken to touch (rad).
-    min_crossing_angle: float = math.radians(8.0)
-    #: A cross-section (run of mask pixels along a RoI circle) wider than this factor times the
-    #: thread width gives one node per edge instead of one at its middle.
-    wide_arc_factor: float = 1.6
-    #: The cut tip is the free end nearest to the tip hint, at most this far from it (px).
-    tip_radius_px: float = 12.0
-    #: Holes of at most this area inside the mask are filled (px², scales with width²).
-    max_hole_area_px: float = 20.0
-    #: Mask components whose bounding box is smaller than this in both directions are removed (px).
-    min_blob_extent_px: float = 5.0
-    #: Right-view tip: at most this many rows from the left tip's row (px). Predicted masks often
-    #: lose a faint tip's last pixels in one view only, which moves that view's free end by a few
-    #: rows; a tolerance of 3 px misses such right tips.
-    row_tolerance_px: float = 6.0
-    #: Right-view tip: depth range that bounds the disparity search (m).
-    min_depth_m: float = 0.05
-    max_depth_m: float = 0.15
-    #: A view whose search stops at a gap the other view does not have is continued along the
-    #: other view (shifted by the disparity, kept where this view's mask confirms it) across
-    #: gaps of up to this many px; 0 turns it off (:mod:`suture_ordering.stereo_fill`).
-    stereo_fill_max_gap_px: float = 60.0
-    #: With low masks (:func:`suture_ordering.order_stereo`), their sequences are taken when one
-    #: view's is longer than the masks' by more than this share ...
-    low_mask_min_gain: float = 0.1
-    #: ... and neither view's is shorter by more than this share.
-    low_mask_max_loss: float = 0.02
-    #: Upper bound on search steps (a safeguard; a 640 px image needs < 200).
-    max_steps: int = 2000
-    #: Width the pixel values above refer to; None: use them unscaled.
-    reference_width_px: float | None = 640.0
+    roi_radius_px: float = field(
+        default=24.0,
+        metadata=described(
+            "Υ: radius of the Region of Interest around the current vertex (px)", (0.0, 640.0)
+        ),
+    )
+    step_radius_px: float = field(
+        default=8.0,
+        metadata=described(
+            "inner radius of the RoI: the nearest active nodes lie this far from the vertex, so the "
+            "search advances by about this much per step (px; 2 to roi_radius_px)",
+            (2.0, 640.0),
+        ),
+    )
+    detect_radius_px: float = field(
+        default=2.5,
+        metadata=described(
+            "centreline nodes within this distance of the path already traversed are detected "
+            "(px; below step_radius_px)",
+            (0.0, 640.0),
+        ),
+    )
+    zone_margin_px: int = field(
+        default=1,
+        metadata=described(
+            'the "zone" for the out-of-zone count O is the mask dilated by this many pixels', (0, 64)
+        ),
+    )
+    mu: float = field(
+        default=0.01,
+        metadata=described("μ of Eq. (5): a small positive gain; O = 0 costs log(μ)", (0.0, 1.0)),
+    )
+    eps1_range: tuple[float, float] = field(
+        default=(1.0, 5.0),
+        metadata=described("R1 of Eq. (7): [low, high] of ε1, the weight of the out-of-zone count"),
+    )
+    eps2_range: tuple[float, float] = field(
+        default=(0.1, 0.5),
+        metadata=described("R2 of Eq. (7): [low, high] of ε2, the weight of the distance"),
+    )
+    eps3_range: tuple[float, float] = field(
+        default=(0.02, 0.1),
+        metadata=described("R3 of Eq. (7): [low, high] of ε3, the weight of the turning angle"),
+    )
+    grid_size: int = field(
+        default=3,
+        metadata=described(
+            "values per range in the tuning grid of Eq. (7) (grid_size³ parameter sets; 1: midpoints)",
+            (1, 20),
+        ),
+    )
+    tau_o_factor: float = field(
+        default=2.6,
+        metadata=described(
+            "τ_O = tau_o_factor x Υ (px): candidates with O >= τ_O are not admissible", (0.0, 100.0)
+        ),
+    )
+    tau_v: float = field(
+        default=2.0 * math.pi / 3.0,
+        metadata=described("τ_V: candidates turning by δ >= τ_V are not admissible (rad)", (0.0, math.pi)),
+    )
+    max_mask_fraction: float = field(
+        default=0.15,
+        metadata=described(
+            "largest share of the image a mask may cover: a thread covers a few percent; more is "
+            "noise, a wrong threshold or encoding, and ordering it would take minutes",
+            (0.0, 1.0),
+        ),
+    )
+    curvature_prediction: bool = field(
+        default=True,
+        metadata=described(
+            "measure δ from the direction predicted by the thread's curvature (the last chord turned "
+            "by the last turn) instead of the last chord alone (the paper's literal Eq. 4)"
+        ),
+    )
+    max_predicted_turn: float = field(
+        default=math.radians(45.0),
+        metadata=described("largest turn the curvature prediction extrapolates (rad)", (0.0, math.pi)),
+    )
+    bridge_turn_max: float = field(
+        default=math.radians(45.0),
+        metadata=described(
+            "a candidate whose chord leaves the zone (O > 0, a bridged gap) may turn at most this "
+            "much, and the thread beyond it must continue within this angle of the chord (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    bridge_bend_max: float = field(
+        default=math.radians(20.0),
+        metadata=described(
+            "a bridged gap must bend like one smooth arc: the turns into and out of its chord may "
+            "differ by at most this (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    junction_bend_max: float = field(
+        default=math.radians(30.0),
+        metadata=described(
+            "at a junction where every branch ahead bends by at least this much, the thread ends (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    junction_tie: float = field(
+        default=math.radians(8.0),
+        metadata=described(
+            "at a junction, a branch must bend this much less than the next to be chosen from afar (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    sharp_step_turn: float = field(
+        default=math.radians(32.0),
+        metadata=described(
+            "a step whose straightest near node turns by more than this is examined as a junction "
+            "too: where a strand leaves the thread at a shallow angle (a small loop entered "
+            "tangentially) the near node may be the other strand (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    min_crossing_angle: float = field(
+        default=math.radians(8.0),
+        metadata=described(
+            "at a junction with four arms, the strands must meet at least at this angle to be taken "
+            "as crossing (the thread then goes straight across); below it they touch (rad)",
+            (0.0, math.pi),
+        ),
+    )
+    wide_arc_factor: float = field(
+        default=1.6,
+        metadata=described(
+            "a cross-section (run of mask pixels along a RoI circle) wider than this factor times "
+            "the thread width gives one node per edge instead of one at its middle",
+            (0.0, 100.0),
+        ),
+    )
+    tip_radius_px: float = field(
+        default=12.0,
+        metadata=described(
+            "the cut tip is the free end nearest to the tip hint, at most this far from it (px)", (0.0, 640.0)
+        ),
+    )
+    max_hole_area_px: float = field(
+        default=20.0,
+        metadata=described(
+            "holes of at most this area inside the mask are filled (px², scales with the width²)",
+            (0.0, 640.0 * 480.0),
+        ),
+    )
+    min_blob_extent_px: float = field(
+        default=5.0,
+        metadata=described(
+            "mask components whose bounding box is smaller than this in both directions are removed (px)",
+            (0.0, 640.0),
+        ),
+    )
+    row_tolerance_px: float = field(
+        default=6.0,
+        metadata=described(
+            "right-view tip: at most this many rows from the left tip's row (px; predicted masks often "
+            "lose a faint tip's last pixels in one view only)",
+            (0.0, 480.0),
+        ),
+    )
+    min_depth_m: float = field(
+        default=0.05,
+        metadata=described("right-view tip: nearest depth of the disparity search (m)", (0.0, 100.0)),
+    )
+    max_depth_m: float = field(
+        default=0.15,
+        metadata=described(
+            "right-view tip: farthest depth of the disparity search (m; above min_depth_m)", (0.0, 100.0)
+        ),
+    )
+    stereo_fill_max_gap_px: float = field(
+        default=60.0,
+        metadata=described(
+            "a view whose search stops at a gap the other view does not have is continued along the "
+            "other view across gaps of up to this many px (suture_ordering.stereo_fill); 0: off",
+            (0.0, 640.0),
+        ),
+    )
+    low_mask_min_gain: float = field(
+        default=0.1,
+        metadata=described(
+            "with low masks, their sequences are taken when one view's is longer than the masks' by "
+            "more than this share (below 1) ...",
+            (0.0, 1.0),
+        ),
+    )
+    low_mask_max_loss: float = field(
+        default=0.02,
+        metadata=described("... and neither view's is shorter by more than this share (below 1)", (0.0, 1.0)),
+    )
+    max_steps: int = field(
+        default=2000,
+        metadata=described(
+            "upper bound on search steps (a safeguard; a 640 px image needs < 200)", (1, 1_000_000)
+        ),
+    )
+    reference_width_px: float | None = field(
+        default=640.0,
+        metadata=described(
+            "width (px) the pixel values refer to; they scale with the mask width. "
+            "None (as a ROS parameter: 0): use them unscaled",
+            (0.0, 100_000.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         positive = (

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from suture_common.camera import CameraModelError, StereoCamera
+from suture_common.parameters import described
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
 from suture_reconstruction.pairing import (
@@ -91,18 +92,48 @@ class ReconstructionParams:
     :meth:`replace` takes flat names for the nested parameters too.
     """
 
-    min_points: int = 8
+    min_points: int = field(
+        default=8,
+        metadata=described(
+            "fewest points a sequence must have",
+            (3, 1_000_000),
+        ),
+    )
     smoothing_window: int = 9
     max_jump_px: float = 4.0
     pairing: PairingParams = field(default_factory=PairingParams)
     disparity: DisparitySmoothing = field(default_factory=DisparitySmoothing)
     photometric: PhotometricParams = field(default_factory=PhotometricParams)
     min_pairs: int = 8
-    vertex_step: float = 0.0001
+    vertex_step: float = field(
+        default=0.0001,
+        metadata=described(
+            "spacing (m) of the vertices given to Algorithm 1 (unit of |i - t| in Eq. 11; > 0)",
+            (0.0, 0.01),
+        ),
+    )
     shape: ShapeGraphParams = field(default_factory=ShapeGraphParams)
-    curve_smoothing: float = 0.001
-    path_step: float = 0.0005
-    grasp_arc_length: float = 0.05
+    curve_smoothing: float = field(
+        default=0.001,
+        metadata=described(
+            "smoothing length (m) of the 3D curve",
+            (0.0, 0.1),
+        ),
+    )
+    path_step: float = field(
+        default=0.0005,
+        metadata=described(
+            "spacing (m) of the published path (> 0)",
+            (0.0, 0.1),
+        ),
+    )
+    grasp_arc_length: float = field(
+        default=0.05,
+        metadata=described(
+            "arc length (m) from the cut tip to the grasp point",
+            (0.0, 1.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:

@@ -60,13 +60,14 @@ Units: pixels throughout; t in right-sequence samples (px).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, minimum_filter1d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from suture_common.parameters import described
 from suture_reconstruction.sequences import roughness, row_alignment
 from suture_reconstruction.smoothing import whittaker
 
@@ -257,8 +258,20 @@ class PairingParams:
     :func:`end_pairs`. ``selection``: the pass-1 graph (:class:`SelectionCosts`).
     """
 
-    min_depth: float = 0.045
-    max_depth: float = 0.165
+    min_depth: float = field(
+        default=0.045,
+        metadata=described(
+            "nearest depth (m) of a pair: the largest disparity accepted",
+            (0.0, 100.0),
+        ),
+    )
+    max_depth: float = field(
+        default=0.165,
+        metadata=described(
+            "farthest depth (m) of a pair: the smallest disparity accepted",
+            (0.0, 100.0),
+        ),
+    )
     tangent_window: int = 21
     min_crossing_angle_deg: float = 1.5
     reliable_angle_deg: float = 10.0

@@ -40,13 +40,12 @@ from typing import Any
 import numpy as np
 from geometry_msgs.msg import Point, PolygonStamped, PoseStamped
 from nav_msgs.msg import Path
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from suture_common.camera import CameraModelError, StereoCamera
+from suture_common.camera import CameraInfoCache, CameraModelError, StereoCamera
 from suture_common.messages import (
     MessageConversionError,
     image_to_array,
@@ -54,10 +53,12 @@ from suture_common.messages import (
     polygon_to_array,
     pose_message,
 )
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
 from suture_common.ros import (
     RELIABLE_QOS,
     SENSOR_DATA_QOS,
     ThrottledWarnings,
+    declare_parameters,
     run_node,
     sensor_data_qos,
     serialized,
@@ -80,46 +81,52 @@ from suture_common.topics import (
 )
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import ImagePairError, ReconstructionError
+from suture_reconstruction.pairing import PairingParams
 from suture_reconstruction.photometric import check_image_pair
+from suture_reconstruction.shape_graph import ShapeGraphParams
 
 NODE_NAME = "reconstruction_node"
 IMAGE_ENCODINGS = ("rgb8", "bgr8", "mono8")
 
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "grasp_arc_length": (0.05, "arc length (m) from the cut tip to the grasp point"),
-    "tau_l": (0.001, "Algorithm 1: initial edge length limit tau_L (m)"),
-    "tau_step": (0.0005, "Algorithm 1: growth step of tau_L (m; the paper's 0.5, read as 0.5 mm)"),
-    "upsilon3": (0.001, "Algorithm 1: radius Upsilon_3 (m) of the density sphere of Eq. 9"),
-    "sigma1": (10.0, "Algorithm 1: steepness sigma_1 (neighbour count) of Eq. 9"),
-    "nu1": (0.001, "Algorithm 1: nu_1 (m) of Eq. 9"),
-    "vertex_step": (0.0001, "spacing (m) of the vertices given to Algorithm 1 (unit of |i - t| in Eq. 11)"),
-    "min_depth": (0.045, "nearest depth (m) of a pair: the largest disparity accepted"),
-    "max_depth": (0.165, "farthest depth (m) of a pair: the smallest disparity accepted"),
-    "min_points": (8, "fewest points a sequence must have"),
-    "curve_smoothing": (0.001, "smoothing length (m) of the 3D curve"),
-    "path_step": (0.0005, "spacing (m) of the published path"),
-    "frame_id": (LEFT_FRAME, "frame of the outputs (the left camera optical frame)"),
-    "buffer_size": (30, "unmatched stamps kept per side while waiting for the other sequence"),
-    "use_images": (True, "refine the disparity with the rectified images (subscribes /stereo/*/image_rect)"),
-    "image_buffer_size": (10, "stereo image pairs kept while their sequences are on the way"),
-    "log_throttle": (5.0, "seconds between two warnings for the same reason"),
-}
-"""Declared parameters: name -> (default, description)."""
-
 _CORE_PARAMETERS = (
-    "grasp_arc_length",
-    "tau_l",
-    "tau_step",
-    "upsilon3",
-    "sigma1",
-    "nu1",
-    "vertex_step",
-    "min_depth",
-    "max_depth",
-    "min_points",
-    "curve_smoothing",
-    "path_step",
+    (ReconstructionParams, "grasp_arc_length"),
+    (ShapeGraphParams, "tau_l"),
+    (ShapeGraphParams, "tau_step"),
+    (ShapeGraphParams, "upsilon3"),
+    (ShapeGraphParams, "sigma1"),
+    (ShapeGraphParams, "nu1"),
+    (ReconstructionParams, "vertex_step"),
+    (PairingParams, "min_depth"),
+    (PairingParams, "max_depth"),
+    (ReconstructionParams, "min_points"),
+    (ReconstructionParams, "curve_smoothing"),
+    (ReconstructionParams, "path_step"),
 )
+"""The fields of the core's parameters the node exposes, each under its own name."""
+
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    (
+        *(field_parameter(cls, name) for cls, name in _CORE_PARAMETERS),
+        ParameterSpec("frame_id", LEFT_FRAME, "frame of the outputs (the left camera optical frame)"),
+        ParameterSpec(
+            "buffer_size",
+            30,
+            "unmatched stamps kept per side while waiting for the other sequence",
+            (1, 10_000),
+        ),
+        ParameterSpec(
+            "use_images",
+            True,
+            "refine the disparity with the rectified images (subscribes /stereo/*/image_rect)",
+        ),
+        ParameterSpec(
+            "image_buffer_size", 10, "stereo image pairs kept while their sequences are on the way", (1, 1000)
+        ),
+        ParameterSpec("log_throttle", 5.0, "seconds between two warnings for the same reason", (0.0, 3600.0)),
+    )
+)
+"""Every parameter of the node, by name: the core's (descriptions and ranges beside their
+dataclass fields) and the node's own."""
 
 
 class ReconstructionNode(Node):
@@ -127,29 +134,24 @@ class ReconstructionNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        for name, (default, description) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
-        values = {name: self.get_parameter(name).value for name in _CORE_PARAMETERS}
-        self.params = ReconstructionParams().replace(**values)  # ValueError on bad values
-        self.frame_id = str(self.get_parameter("frame_id").value)
-        self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(
-            int(self.get_parameter("buffer_size").value)
-        )
-        self.use_images = bool(self.get_parameter("use_images").value)
-        image_capacity = int(self.get_parameter("image_buffer_size").value)
+        values = declare_parameters(self, PARAMETERS.values())
+        core = {name: values[name] for _, name in _CORE_PARAMETERS}
+        self.params = ReconstructionParams().replace(**core)  # ValueError on bad values
+        self.frame_id = str(values["frame_id"])
+        self._buffer: StampPairBuffer[np.ndarray] = StampPairBuffer(int(values["buffer_size"]))
+        self.use_images = bool(values["use_images"])
+        image_capacity = int(values["image_buffer_size"])
         self._images: StampedPairs[Image] = StampedPairs(image_capacity)  # ValueError below 1
-        self._camera_info: dict[str, CameraInfo] = {}
-        self._camera: tuple[tuple[Any, ...], StereoCamera] | None = None
-        self._warnings = ThrottledWarnings(self.get_logger(), float(self.get_parameter("log_throttle").value))
+        self._cameras = CameraInfoCache()
+        log_throttle = float(values["log_throttle"])
+        self._warnings = ThrottledWarnings(self.get_logger(), log_throttle)
         self.frames = 0
         """Stereo pairs reconstructed and published."""
         self.dropped: dict[str, int] = self._warnings.counts
         """Stereo pairs dropped, by reason."""
         self.refined = 0
         """Stereo pairs whose disparity the images refined."""
-        self._image_warnings = ThrottledWarnings(
-            self.get_logger(), float(self.get_parameter("log_throttle").value)
-        )
+        self._image_warnings = ThrottledWarnings(self.get_logger(), log_throttle)
         self.without_images: dict[str, int] = self._image_warnings.counts
         """Stereo pairs reconstructed from the sequences alone although ``use_images`` is set, by reason."""
 
@@ -164,13 +166,10 @@ class ReconstructionNode(Node):
             PolygonStamped, RIGHT_SEQUENCE, lambda m: self._on_sequence("right", m), RELIABLE_QOS
         )
         self.create_subscription(
-            CameraInfo, LEFT_CAMERA_INFO, lambda m: self._camera_info.__setitem__("left", m), SENSOR_DATA_QOS
+            CameraInfo, LEFT_CAMERA_INFO, lambda m: self._cameras.update("left", m), SENSOR_DATA_QOS
         )
         self.create_subscription(
-            CameraInfo,
-            RIGHT_CAMERA_INFO,
-            lambda m: self._camera_info.__setitem__("right", m),
-            SENSOR_DATA_QOS,
+            CameraInfo, RIGHT_CAMERA_INFO, lambda m: self._cameras.update("right", m), SENSOR_DATA_QOS
         )
         if self.use_images:
             images_qos = sensor_data_qos(5)
@@ -242,20 +241,16 @@ class ReconstructionNode(Node):
             return None
 
     def _stereo_camera(self) -> StereoCamera | None:
-        left, right = self._camera_info.get("left"), self._camera_info.get("right")
-        if left is None or right is None:
-            missing = " and ".join(s for s, m in (("left", left), ("right", right)) if m is None)
-            self._drop("no_camera_info", f"dropped stereo pair: no {missing} camera_info received yet")
+        missing = self._cameras.missing()
+        if missing:
+            sides = " and ".join(missing)
+            self._drop("no_camera_info", f"dropped stereo pair: no {sides} camera_info received yet")
             return None
-        key = (tuple(left.p), tuple(right.p), left.width, left.height, right.width, right.height)
-        if self._camera is None or self._camera[0] != key:
-            try:
-                self._camera = (key, StereoCamera.from_camera_info(left, right))
-            except CameraModelError as exc:
-                self._camera = None
-                self._drop("camera_info", f"dropped stereo pair: unusable camera_info: {exc}")
-                return None
-        return self._camera[1]
+        try:
+            return self._cameras.camera()
+        except CameraModelError as exc:
+            self._drop("camera_info", f"dropped stereo pair: unusable camera_info: {exc}")
+            return None
 
     # ------------------------------------------------------------------ output
 

@@ -66,13 +66,14 @@ it with a literal dense w1 x w1 implementation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from suture_common.parameters import described
 from suture_reconstruction.errors import TooFewPointsError
 
 _MM = 1000.0
@@ -90,12 +91,42 @@ class ShapeGraphParams:
     the 20 and 2 of Eq. 11; ``max_tau_l``: give up beyond this limit (m).
     """
 
-    tau_l: float = 0.001
-    tau_step: float = 0.0005
-    upsilon3: float = 0.001
-    sigma1: float = 10.0
+    tau_l: float = field(
+        default=0.001,
+        metadata=described(
+            "Algorithm 1: initial edge length limit tau_L (m)",
+            (0.0, 0.1),
+        ),
+    )
+    tau_step: float = field(
+        default=0.0005,
+        metadata=described(
+            "Algorithm 1: growth step of tau_L (m; the paper's 0.5, read as 0.5 mm)",
+            (0.0, 0.1),
+        ),
+    )
+    upsilon3: float = field(
+        default=0.001,
+        metadata=described(
+            "Algorithm 1: radius Upsilon_3 (m) of the density sphere of Eq. 9",
+            (0.0, 0.1),
+        ),
+    )
+    sigma1: float = field(
+        default=10.0,
+        metadata=described(
+            "Algorithm 1: steepness sigma_1 (neighbour count) of Eq. 9",
+            (0.0, 1000.0),
+        ),
+    )
     scale: float = 1.0
-    nu1: float = 0.001
+    nu1: float = field(
+        default=0.001,
+        metadata=described(
+            "Algorithm 1: nu_1 (m) of Eq. 9",
+            (0.0, 0.1),
+        ),
+    )
     order_scale: float = 20.0
     order_offset: float = 2.0
     max_tau_l: float = 0.1

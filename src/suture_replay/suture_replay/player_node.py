@@ -6,10 +6,10 @@ one ``header.stamp``) and deserialised into rclpy messages before the first one 
 published, so publishing costs nothing at replay time (:mod:`suture_replay.replay`).
 Header stamps are kept as recorded (plus the loop offset), never replaced by now.
 
-Parameters (read at start-up; numbers accept ints or doubles):
+Parameters (read at start-up; numbers accept ints or doubles; :data:`PARAMETERS`):
 
 - ``bag`` (string, required): rosbag2 MCAP directory or ``.mcap`` file.
-- ``topics`` (string array, default the DESIGN.md inputs: stereo images, camera_info,
+- ``topics`` (string array, default the inputs of docs/interfaces.md: stereo images, camera_info,
   tip hint). Topics absent from the bag are skipped with one info line; a bag with none
   of them is an error.
 - ``rate`` (double, default 1.0): recorded timing divided by this (2.0 = twice as fast).
@@ -17,7 +17,7 @@ Parameters (read at start-up; numbers accept ints or doubles):
   one's output arrived on ``output_topic`` (or ``wait_timeout`` passed), i.e. as fast as
   the graph keeps up, instead of following the recorded timing.
 - ``output_topic`` (string, default ``/suture/grasp_pose``): where outputs are matched to
-  frames by header stamp. Its type is geometry_msgs/PoseStamped, or the DESIGN.md type
+  frames by header stamp. Its type is geometry_msgs/PoseStamped, or the docs/interfaces.md type
   when the topic is one of suture_common.topics.TOPIC_TYPES (e.g. ``/suture/left/mask``
   to time the segmentation alone; image topics are then subscribed best effort).
 - ``wait_timeout`` (double s, default 2.0): longest wait for one frame's output. The first
@@ -60,9 +60,16 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from suture_common.ros import RELIABLE_QOS, SENSOR_DATA_QOS, from_cdr, message_class, run_node
-from suture_common.topics import INPUT_TOPICS, TOPIC_TYPES
-from suture_replay.node_main import declare_parameters
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
+from suture_common.ros import (
+    RELIABLE_QOS,
+    SENSOR_DATA_QOS,
+    declare_parameters,
+    from_cdr,
+    message_class,
+    run_node,
+)
+from suture_common.topics import TOPIC_TYPES
 from suture_replay.replay import (
     IMAGE_TYPES,
     FrameRecord,
@@ -89,22 +96,15 @@ FIRST_FRAME_RESENDS = 2
 PUBLISH_QOS = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 """What ``ros2 bag play`` offers by default: reliable, keep last 10, volatile."""
 
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "bag": ("", "rosbag2 MCAP directory or .mcap file to replay (required)"),
-    "topics": (list(INPUT_TOPICS), "topics to replay; those absent from the bag are skipped"),
-    "rate": (1.0, "speed factor of the recorded timing (2.0 = twice as fast); > 0"),
-    "wait_for_output": (
-        False,
-        "publish the next frame once the output of the previous one arrived (or wait_timeout)",
-    ),
-    "output_topic": ("/suture/grasp_pose", "output matched to frames by header stamp for latency"),
-    "wait_timeout": (2.0, "seconds to wait for a frame's output in wait_for_output mode"),
-    "loops": (1, "times to replay the bag; later loops shift stamps by the bag span + one period"),
-    "start_timeout": (15.0, "seconds to wait for image subscribers and an output publisher"),
-    "linger": (1.0, "seconds to keep receiving outputs after the last frame"),
-    "report": ("", "JSON report file to write at the end; empty: none"),
-}
-"""Every parameter: default and description."""
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    # dynamic typing: numbers may be given as ints or doubles, ``topics`` as a single string;
+    # ``bag`` is required: empty by default
+    field_parameter(
+        PlayerSettings, name, default="" if name == "bag" else dataclasses.MISSING, dynamic_typing=True
+    )
+    for name in (field.name for field in dataclasses.fields(PlayerSettings))
+)
+"""Every parameter, by name: the fields of :class:`PlayerSettings` (descriptions and ranges there)."""
 
 
 class PlayerNode(Node):
@@ -122,7 +122,7 @@ class PlayerNode(Node):
             raise
 
     def _setup(self) -> None:
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS.values())
         self.settings = settings = PlayerSettings(**values)  # ValueError on a bad value
         output_type = TOPIC_TYPES.get(settings.output_topic, DEFAULT_OUTPUT_TYPE)
         output_class = message_class(output_type)

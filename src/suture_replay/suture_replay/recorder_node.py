@@ -1,6 +1,6 @@
 """recorder_node: record pipeline topics into a rosbag2 MCAP bag, like ``ros2 bag record``.
 
-Parameters (read at start-up):
+Parameters (read at start-up; :data:`PARAMETERS`):
 
 - ``output`` (string, required): the rosbag2 directory to create; it must not exist,
   its parent is created if missing.
@@ -34,9 +34,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from suture_common.bag_io import BagWriter
-from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, message_class, run_node
-from suture_common.topics import PIPELINE_OUTPUT_TOPICS
-from suture_replay.node_main import declare_parameters
+from suture_common.parameters import ParameterSpec, field_parameter, spec_table
+from suture_common.ros import SENSOR_DATA_QOS, ThrottledWarnings, declare_parameters, message_class, run_node
 from suture_replay.replay import IMAGE_TYPES, RecorderSettings
 
 NODE_NAME = "recorder"
@@ -54,11 +53,13 @@ IMAGE_QOS = QoSProfile(
 RECORD_QOS = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
 """Everything else: reliable, keep last 100, volatile."""
 
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "output": ("", "rosbag2 directory to create (required; must not exist)"),
-    "topics": (list(PIPELINE_OUTPUT_TOPICS), "topics to record (DESIGN.md topics only)"),
-}
-"""Every parameter: default and description."""
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    (
+        field_parameter(RecorderSettings, "output", default="", dynamic_typing=True),  # required
+        field_parameter(RecorderSettings, "topics", dynamic_typing=True),
+    )
+)
+"""Every parameter, by name: fields of :class:`RecorderSettings` (descriptions there)."""
 
 
 class RecorderNode(Node):
@@ -77,7 +78,7 @@ class RecorderNode(Node):
             raise
 
     def _setup(self) -> None:
-        values = declare_parameters(self, PARAMETERS)
+        values = declare_parameters(self, PARAMETERS.values())
         self.settings = settings = RecorderSettings(**values)  # ValueError on a bad value
         classes = {topic: message_class(msgtype) for topic, msgtype in settings.types.items()}
 

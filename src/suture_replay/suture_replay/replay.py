@@ -33,6 +33,7 @@ import numpy as np
 
 from suture_common.bag_io import bag_summary, read_raw
 from suture_common.messages import TYPESTORE
+from suture_common.parameters import described
 from suture_common.topics import GRASP_POSE, INPUT_TOPICS, PIPELINE_OUTPUT_TOPICS, TOPIC_TYPES
 
 IMAGE_TYPES = frozenset({"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage"})
@@ -211,7 +212,10 @@ def _finite(name: str, value: Any) -> float:
 
 
 def _topic_list(name: str, topics: Any) -> tuple[str, ...]:
-    if isinstance(topics, str) or not all(isinstance(t, str) for t in topics):
+    """``topics`` checked, as a tuple; a single name is a list of one (``-p topics:=/a`` at start-up)."""
+    if isinstance(topics, str):
+        topics = [topics]
+    if not all(isinstance(t, str) for t in topics):
         raise ValueError(f"{name} must be a list of topic names, got {topics!r}")
     topics = tuple(topics)
     if not topics:
@@ -224,18 +228,46 @@ def _topic_list(name: str, topics: Any) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class PlayerSettings:
-    """The player's parameters, checked (a bad value raises ValueError naming the parameter)."""
+    """The player's parameters, checked (a bad value raises ValueError naming the parameter).
 
-    bag: str
-    topics: tuple[str, ...] = INPUT_TOPICS
-    rate: float = 1.0
-    wait_for_output: bool = False
-    output_topic: str = GRASP_POSE
-    wait_timeout: float = 2.0
-    loops: int = 1
-    start_timeout: float = 15.0
-    linger: float = 1.0
-    report: str = ""
+    Each field's metadata holds its description and range as a ROS parameter of player_node."""
+
+    bag: str = field(metadata=described("rosbag2 MCAP directory or .mcap file to replay (required)"))
+    topics: tuple[str, ...] = field(
+        default=INPUT_TOPICS, metadata=described("topics to replay; those absent from the bag are skipped")
+    )
+    rate: float = field(
+        default=1.0,
+        metadata=described("speed factor of the recorded timing (2.0 = twice as fast); > 0", (0.0, 1000.0)),
+    )
+    wait_for_output: bool = field(
+        default=False,
+        metadata=described(
+            "publish the next frame once the output of the previous one arrived (or wait_timeout)"
+        ),
+    )
+    output_topic: str = field(
+        default=GRASP_POSE, metadata=described("output matched to frames by header stamp for latency")
+    )
+    wait_timeout: float = field(
+        default=2.0,
+        metadata=described("seconds to wait for a frame's output in wait_for_output mode", (0.0, 3600.0)),
+    )
+    loops: int = field(
+        default=1,
+        metadata=described(
+            "times to replay the bag; later loops shift stamps by the bag span + one period", (1, 1_000_000)
+        ),
+    )
+    start_timeout: float = field(
+        default=15.0,
+        metadata=described("seconds to wait for image subscribers and an output publisher", (0.0, 3600.0)),
+    )
+    linger: float = field(
+        default=1.0,
+        metadata=described("seconds to keep receiving outputs after the last frame", (0.0, 3600.0)),
+    )
+    report: str = field(default="", metadata=described("JSON report file to write at the end; empty: none"))
 
     def __post_init__(self) -> None:
         if not isinstance(self.bag, str):
@@ -266,10 +298,17 @@ class PlayerSettings:
 
 @dataclass(frozen=True)
 class RecorderSettings:
-    """The recorder's parameters, checked; ``types`` maps each topic to its type (TOPIC_TYPES)."""
+    """The recorder's parameters, checked; ``types`` maps each topic to its type (TOPIC_TYPES).
 
-    output: str
-    topics: tuple[str, ...] = PIPELINE_OUTPUT_TOPICS
+    ``output`` and ``topics`` carry their description as ROS parameters of recorder_node."""
+
+    output: str = field(metadata=described("rosbag2 directory to create (required; must not exist)"))
+    topics: tuple[str, ...] = field(
+        default=PIPELINE_OUTPUT_TOPICS,
+        metadata=described(
+            "topics to record (those of docs/interfaces.md only); a single name is a list of one"
+        ),
+    )
     types: dict[str, str] = field(init=False)
 
     def __post_init__(self) -> None:

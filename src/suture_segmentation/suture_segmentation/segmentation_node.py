@@ -37,7 +37,6 @@ import sys
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
@@ -47,9 +46,11 @@ from suture_common.messages import (
     image_message,
     image_to_array,
 )
+from suture_common.parameters import ParameterSpec, spec_table
 from suture_common.ros import (
     SENSOR_DATA_QOS,
     ThrottledWarnings,
+    declare_parameters,
     run_node,
     sensor_data_qos,
     serialized,
@@ -67,28 +68,54 @@ from suture_segmentation.core import (
 
 NODE_NAME = "segmentation_node"
 
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    "weights": ("", 'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot"[_int8], or a .pt/.onnx file'),
-    "backend": ("onnx", "inference backend: onnx (ONNX Runtime) or torch"),
-    "device": ("cpu", "cpu or cuda[:N]"),
-    "threshold": (0.5, "suture probability above which a pixel is suture, in (0, 1)"),
-    "low_threshold": (
-        LOW_THRESHOLD,
-        "lower threshold of the low masks (mask_low topics: pixels above it connected to the mask), "
-        "in (0, threshold]; 0: no low masks",
-    ),
-    "input_width": (0, "width the images are resized to for inference (0 with input_height 0: own size)"),
-    "input_height": (0, "height the images are resized to for inference (0 with input_width 0: own size)"),
-    "threads": (0, "CPU threads of the backend (0: the runtime's default)"),
-    "max_pending": (10, "unmatched images kept per side while waiting for the other view"),
-    "queue_depth": (
-        1,
-        "images queued per camera while the node is busy: 1 = always the newest frame (bounded "
-        "latency when images come faster than they are segmented); more = every frame, later",
-    ),
-    "log_throttle": (2.0, "seconds between two warnings for the same problem"),
-}
-"""Declared parameters: name -> (default, description)."""
+PARAMETERS: dict[str, ParameterSpec] = spec_table(
+    (
+        ParameterSpec(
+            "weights",
+            "",
+            'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot"[_int8], or a .pt/.onnx file',
+        ),
+        ParameterSpec("backend", "onnx", "inference backend: onnx (ONNX Runtime) or torch"),
+        ParameterSpec("device", "cpu", "cpu or cuda[:N]"),
+        ParameterSpec(
+            "threshold", 0.5, "suture probability above which a pixel is suture, in (0, 1)", (0.0, 1.0)
+        ),
+        ParameterSpec(
+            "low_threshold",
+            LOW_THRESHOLD,
+            "lower threshold of the low masks (mask_low topics: pixels above it connected to the mask), "
+            "in (0, threshold]; 0: no low masks",
+            (0.0, 1.0),
+        ),
+        ParameterSpec(
+            "input_width",
+            0,
+            "width the images are resized to for inference (0 with input_height 0: own size)",
+            (0, 16_384),
+        ),
+        ParameterSpec(
+            "input_height",
+            0,
+            "height the images are resized to for inference (0 with input_width 0: own size)",
+            (0, 16_384),
+        ),
+        ParameterSpec("threads", 0, "CPU threads of the backend (0: the runtime's default)", (0, 1024)),
+        ParameterSpec(
+            "max_pending", 10, "unmatched images kept per side while waiting for the other view", (1, 10_000)
+        ),
+        ParameterSpec(
+            "queue_depth",
+            1,
+            "images queued per camera while the node is busy: 1 = always the newest frame (bounded "
+            "latency when images come faster than they are segmented); more = every frame, later",
+            (1, 1000),
+        ),
+        ParameterSpec(
+            "log_throttle", 2.0, "seconds between two warnings for the same problem", (0.0, 3600.0)
+        ),
+    )
+)
+"""Every parameter of the node, by name."""
 
 
 def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
@@ -131,9 +158,7 @@ class SegmentationNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        for name, (default, description) in PARAMETERS.items():
-            self.declare_parameter(name, default, ParameterDescriptor(description=description))
-        values = {name: self.get_parameter(name).value for name in PARAMETERS}
+        values = declare_parameters(self, PARAMETERS.values())
         self.segmenter = segmenter_from_values(values)  # ValueError on bad values or weights
         self.pairer: StampPairBuffer[Image] = StampPairBuffer(int(values["max_pending"]))
         self._warnings = ThrottledWarnings(self.get_logger(), float(values["log_throttle"]))

@@ -286,7 +286,7 @@ def test_queue_depth_bounds_the_images_waiting(context, random_weights, queue_de
 @pytest.mark.parametrize(
     ("overrides", "match"),
     [
-        ({"queue_depth": 0}, "queue depth"),
+        ({"queue_depth": 0}, "queue_depth"),
         ({"input_width": 320}, "input_width and input_height"),
         ({"threads": -1}, "threads"),
         ({"threshold": 1.5}, "threshold"),
