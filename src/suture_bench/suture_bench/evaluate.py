@@ -233,7 +233,7 @@ class Scoreboard:
             tally.latency[stage].append(ms)
         if outputs.not_run is not None:
             tally.unscored[f"not run: {outputs.not_run}"] += 1
-            record["not_run"] = outputs.not_run
+            record.update(not_run=outputs.not_run, grasp_produced=False)
             return record
         if outputs.masks is not None:
             record["segmentation"] = self._score_masks(frame, outputs.masks)
@@ -406,9 +406,13 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
     # Frames without a grasp point count as misses: "within 5 mm" is a share of all frames.
     scored_frames = len(all_grasp) + sum(tally.grasp_missing.values())
     for failure, count in sorted(tally.failures.items()):
-        tally.note(
-            f"{failure} in {count} frame(s): excluded from the error figures, counted as misses in within_5mm"
-        )
+        if scored_frames:
+            tally.note(
+                f"{failure} in {count} frame(s): excluded from the error figures, "
+                "counted as misses in within_5mm"
+            )
+        else:
+            tally.note(f"{failure} in {count} frame(s): no grasp produced")
     for reason, count in sorted(tally.unscored.items()):
         tally.note(f"{reason}: {count} frame(s) not scored there")
     if tally.visibility.get("mask"):
