@@ -210,7 +210,7 @@ def test_a_raw_topic_bag_with_its_camera_info_comes_back_rectified(recording, tm
 
 
 def test_bad_recordings_fail_with_one_line(recording, tmp_path, capsys):
-    root, frames = recording
+    root, _ = recording
     small = tmp_path / "small"
     small.mkdir()
     cv2.imwrite(str(small / "left_1.png"), np.zeros((120, 160, 3), np.uint8))
