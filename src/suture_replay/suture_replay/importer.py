@@ -19,7 +19,9 @@ rectified camera_info, and, when given, tip hints (``--tip-hints CSV``: a header
 or ``stamp_ns,u,v``; ``frame`` is the pair's number, see below; u, v pixels of the raw left
 image, rectified with the same maps) and hand-drawn masks (``--left-masks DIR``,
 ``--right-masks DIR``: 0 = background, non-zero = suture; rectified with the same maps,
-written as ``/ground_truth/{left,right}/mask``).
+written as ``/ground_truth/{left,right}/mask``). ``--png-dir DIR`` also writes every rectified
+view that has a mask as ``DIR/images/<stamp>_<view>.png`` and ``DIR/masks/<stamp>_<view>.png``,
+the folders ``suture-seg finetune --images --masks`` trains on.
 
 A pair's *number*: for folders paired by name, the number in the names; otherwise its index
 from 0. Masks are matched to pairs by the last number in their file names: the pair's number
@@ -280,8 +282,10 @@ def import_recording(
     left_masks: dict[int, Path] | None = None,
     right_masks: dict[int, Path] | None = None,
     limit: int | None = None,
+    png_dir: Path | None = None,
 ) -> ImportSummary:
-    """Rectify the raw pairs and write the bag at ``out`` (removed again on any error)."""
+    """Rectify the raw pairs and write the bag at ``out`` (removed again on any error); with
+    ``png_dir``, also the rectified views with masks as training folders."""
     tip_hints, left_masks, right_masks = tip_hints or {}, left_masks or {}, right_masks or {}
     rectifier: Rectifier | None = None
     counts = Counter()
@@ -301,7 +305,7 @@ def import_recording(
                 raise RecordingError(
                     f"pair {pair.number} is {size[0]}x{size[1]}, the first pair {rectifier.size}"
                 )
-            _write_pair(writer, rectifier, pair, tip_hints, left_masks, right_masks, counts)
+            _write_pair(writer, rectifier, pair, tip_hints, left_masks, right_masks, counts, png_dir)
             counts["frames"] += 1
         if rectifier is None:
             raise RecordingError("no stereo pairs to import")
@@ -316,6 +320,7 @@ def _write_pair(
     left_masks: dict[int, Path],
     right_masks: dict[int, Path],
     counts: Counter,
+    png_dir: Path | None,
 ) -> None:
     stamp = pair.stamp_ns
     frames = {"left": topics.LEFT_FRAME, "right": topics.RIGHT_FRAME}
@@ -325,7 +330,8 @@ def _write_pair(
     for view, raw in (("left", pair.left), ("right", pair.right)):
         info = messages.camera_info_message(rectifier.camera, view, stamp, frames[view])
         writer.write(info_topics[view], info, stamp)
-        image = messages.image_message(rectifier.image(view, raw), "rgb8", stamp, frames[view])
+        rectified_image = rectifier.image(view, raw)
+        image = messages.image_message(rectified_image, "rgb8", stamp, frames[view])
         writer.write(image_topics[view], image, stamp)
         masks = left_masks if view == "left" else right_masks
         mask_file = masks.get(pair.number, masks.get(pair.stamp_ns))
@@ -338,9 +344,17 @@ def _write_pair(
                     f"mask {mask_file} is {raw_mask.shape[1]}x{raw_mask.shape[0]}, its image "
                     f"{raw.shape[1]}x{raw.shape[0]}"
                 )
-            rectified = messages.image_message(rectifier.mask(view, raw_mask), "mono8", stamp, frames[view])
-            writer.write(mask_topics[view], rectified, stamp)
+            rectified_mask = rectifier.mask(view, raw_mask)
+            writer.write(
+                mask_topics[view], messages.image_message(rectified_mask, "mono8", stamp, frames[view]), stamp
+            )
             counts["masks"] += 1
+            if png_dir is not None:
+                _write_png(
+                    png_dir / "images" / f"{stamp}_{view}.png",
+                    cv2.cvtColor(rectified_image, cv2.COLOR_RGB2BGR),
+                )
+                _write_png(png_dir / "masks" / f"{stamp}_{view}.png", rectified_mask)
     hint = tip_hints.get(("frame", pair.number), tip_hints.get(("stamp_ns", stamp)))
     if hint is not None:
         u, v = rectifier.points("left", hint[None])[0]
@@ -348,6 +362,12 @@ def _write_pair(
             topics.TIP_HINT, messages.point_message(np.array([u, v, 0.0]), stamp, frames["left"]), stamp
         )
         counts["tip_hints"] += 1
+
+
+def _write_png(path: Path, array: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), array):
+        raise RecordingError(f"cannot write {path}")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -394,6 +414,9 @@ def _parser() -> argparse.ArgumentParser:
         "--start-ns", type=int, default=DEFAULT_START_NS, help="first stamp of folders and videos"
     )
     parser.add_argument("--limit", type=int, help="import at most N pairs")
+    parser.add_argument(
+        "--png-dir", type=Path, help="also write the rectified views with masks as images/ and masks/ PNGs"
+    )
     parser.add_argument("--out", type=Path, required=True, help="bag to write (a new directory)")
     return parser
 
@@ -437,6 +460,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             left_masks=mask_files(args.left_masks, "left mask"),
             right_masks=mask_files(args.right_masks, "right mask"),
             limit=args.limit,
+            png_dir=args.png_dir,
         )
     except (ValueError, OSError) as error:  # RecordingError, CalibrationError, BagError...
         print(f"suture-import: error: {error}", file=sys.stderr)

@@ -169,8 +169,15 @@ def test_image_folders_with_an_opencv_calibration_come_back_rectified(recording,
     arguments = ["--left", str(root / "left"), "--right", str(root / "right")]
     arguments += ["--calibration", str(root / "stereo.yaml"), "--tip-hints", str(root / "tips.csv")]
     arguments += ["--left-masks", str(root / "left_masks"), "--right-masks", str(root / "right_masks")]
-    assert main([*arguments, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert main([*arguments, "--out", str(out), "--png-dir", str(tmp_path / "png")]) == 0, (
+        capsys.readouterr().err
+    )
     assert "2 stereo pairs" in capsys.readouterr().out
+    # the labelled views as training folders for suture-seg finetune: same names in both
+    images, masks = (
+        sorted(p.name for p in (tmp_path / "png" / sub).iterdir()) for sub in ("images", "masks")
+    )
+    assert images == masks and len(images) == 4
     rectifier = Rectifier(load_opencv_stereo(root / "stereo.yaml"), SIZE)
     assert map_error_on_thread(rectifier, frames) < 0.5
     worst = image_shift_on_thread(out, frames)
