@@ -111,3 +111,15 @@ def test_a_bag_without_camera_info_says_why_it_has_no_frames(sim_bag, tmp_path):
     assert summary["frames"] == 0
     assert sum(summary["skipped"].values()) == 3
     assert any("no stereo frame" in note and "camera_info" in note for note in summary["notes"])
+
+
+def test_a_bag_without_any_ground_truth_still_reports_grasps_and_consistency(sim_bag, tmp_path):
+    bag = copy_bag(sim_bag, tmp_path / "bare", drop={*topics.GROUND_TRUTH_TOPICS, topics.TIP_HINT})
+    summary = evaluate([bag], masks="predicted", sequences="predicted", seg_weights="m_ost")
+    assert summary["frames"] == 3
+    assert summary["segmentation"]["iou"] is None and summary["segmentation"]["cldice"] is None
+    assert summary["unscored"]["segmentation: the bag has no true masks"] == 3
+    grasp = summary["grasp"]
+    assert grasp["produced"] + sum(grasp["refused"].values()) == 3
+    assert summary["self_consistency"]["frames"] == grasp["produced"]
+    assert summary["latency_ms"]["segmentation"] > 0
