@@ -51,6 +51,7 @@ import numpy as np
 
 from suture_common import messages, topics
 from suture_common.bag_io import BagWriter, read_messages
+from suture_common.camera import StereoCamera
 from suture_replay.calibration import (
     Rectifier,
     StereoCalibration,
@@ -270,7 +271,7 @@ class ImportSummary:
     frames: int
     masks: int
     tip_hints: int
-    camera: Any
+    camera: StereoCamera
 
 
 def import_recording(
