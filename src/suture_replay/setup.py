@@ -17,13 +17,15 @@ setup(
     maintainer="Suture grasping maintainers",
     maintainer_email="maintainers@suture-grasping.org",
     description=(
-        "Bag replay and recording without rosbag2: player_node (with latency report) and recorder_node."
+        "Bag replay and recording without rosbag2: player_node (with latency report) and recorder_node; "
+        "suture-import (raw stereo recordings and their calibration into a rectified bag)."
     ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "player_node = suture_replay.player_node:main",
             "recorder_node = suture_replay.recorder_node:main",
+            "suture-import = suture_replay.importer:main",
         ],
     },
 )

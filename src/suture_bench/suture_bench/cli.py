@@ -1,9 +1,11 @@
-"""``suture-eval PATH... [--masks predicted|ground_truth] [--sequences predicted|ground_truth] [--json FILE]``
+"""``suture-eval PATH... [--masks predicted|ground_truth] [--sequences predicted|ground_truth] [--json FILE]
+[--report DIR]``
 
 Runs the pipeline's core functions over MCAP bags (or folders of them) and prints
 our figures by topology next to the paper's; ``--json`` also writes the summary of
-DESIGN.md's evaluation contract. Exit 0 on success, 1 with one line on standard
-error otherwise.
+docs/interfaces.md's evaluation contract, ``--report`` a folder of per-frame JSON and
+pictures (``suture_bench.report``). Bags without 3D truth are scored on what they carry.
+Exit 0 on success, 1 with one line on standard error otherwise.
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ def render_table(summary: dict, title: str = "suture-eval") -> str:
         "",
         f"segmentation  IoU {_fmt(seg['iou'], 3)}  precision {_fmt(seg['precision'], 3)}  "
         f"recall {_fmt(seg['recall'], 3)}  F1 {_fmt(seg['f1'], 3)}    paper: {PAPER_SEGMENTATION}",
+        f"              centreline recall {_fmt(seg.get('centreline_recall'), 3)}  "
+        f"centreline precision {_fmt(seg.get('centreline_precision'), 3)}  "
+        f"clDice {_fmt(seg.get('cldice'), 3)}",
         "",
         f"{'topology':17s} {'ordering':>8s} {'mean err':>8s} {'max err':>8s} {'key pts':>8s} "
         f"{'paper key pts':>13s} {'grasp med':>9s} {'grasp max':>9s} {'paper grasp':>11s} "
@@ -71,8 +76,18 @@ def render_table(summary: dict, title: str = "suture-eval") -> str:
         "<= 5 mm: share of all frames (no grasp point = miss)",
         PAPER_NOTE,
         "",
-        f"{'latency (ms per stereo frame)':30s} {'median':>8s} {'p95':>8s}",
     ]
+    if "produced" in grasp:
+        refused = ", ".join(f"{reason} {count}" for reason, count in grasp["refused"].items()) or "none"
+        consistency = summary["self_consistency"]
+        lines += [
+            f"grasps produced {grasp['produced']} of {summary['frames']} frames; refused: {refused}",
+            "self-consistency (3D path reprojected onto both masks): "
+            f"mean {_fmt(consistency['reprojection_mean_px'])} px, "
+            f"max {_fmt(consistency['reprojection_max_px'])} px over {consistency['frames']} frames",
+            "",
+        ]
+    lines += [f"{'latency (ms per stereo frame)':30s} {'median':>8s} {'p95':>8s}"]
     p95 = summary.get("latency_p95_ms", {})
     for stage, median in summary["latency_ms"].items():
         lines.append(f"{stage:30s} {_fmt(median, 1):>8s} {_fmt(p95.get(stage), 1):>8s}")
@@ -88,6 +103,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--masks", choices=SOURCES, default="predicted")
     parser.add_argument("--sequences", choices=SOURCES, default="predicted")
     parser.add_argument("--json", metavar="FILE", help="also write the JSON summary here")
+    parser.add_argument(
+        "--report", metavar="DIR", help="also write per-frame JSON, overlays and the 3D plot into DIR"
+    )
+    parser.add_argument(
+        "--max-overlays", type=int, default=20, help="overlay pictures in the report (default 20)"
+    )
     parser.add_argument(
         "--seg-weights",
         metavar="WEIGHTS",
@@ -113,6 +134,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             seg_weights=args.seg_weights,
             use_images=not args.no_images,
             use_low_masks=not args.no_low_masks,
+            report=args.report,
+            max_overlays=args.max_overlays,
         )
         if args.json:
             with open(args.json, "w") as stream:

@@ -26,6 +26,20 @@ points; ``within_5mm`` is the share of *all* frames whose grasp point is within 
 (a frame without a grasp point is a miss). Latencies are wall-clock milliseconds per
 stereo frame (``latency_ms`` medians, ``latency_p95_ms`` 95th percentiles).
 
+Bags without 3D truth (true masks only, or nothing; see ``suture_bench.frames``) are
+run through every stage and scored on what they carry: segmentation where true masks
+exist, ordering where true sequences exist, the 3D errors where a true path and grasp pose
+exist. Every frame also reports whether a grasp was produced or, if not, the refusal
+(``grasp.produced``, ``grasp.refused``: 'stage: error type' -> frames), and the stereo
+self-consistency of its reconstruction (``self_consistency``: the 3D path projected onto
+the masks the 3D stage worked from, px; ``reconstruction_metrics.reprojection_to_masks``).
+Frames that could not be scored, stamps that are not frames and frames lost to a damaged
+bag are counted (``unscored``, ``skipped``, ``damaged``) and explained in ``notes``.
+
+Thin-structure figures beside IoU: ``segmentation.centreline_recall``,
+``centreline_precision`` and ``cldice`` (``suture_segmentation.metrics``), pooled over the
+skeleton pixels of all frames.
+
 Running and scoring are separate: :class:`Scoreboard` scores a frame's
 :class:`StageOutputs` however they were made, so the node graph's recorded outputs
 (``suture-graph-report``) are scored by the very same code as ``suture-eval``.
@@ -34,7 +48,7 @@ Running and scoring are separate: :class:`Scoreboard` scores a frame's
 from __future__ import annotations
 
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +57,9 @@ from typing import Any
 import numpy as np
 
 from suture_bench.frames import EvaluationError, Frame, find_bags, read_frames
-from suture_common.bag_io import BagError
+from suture_common import topics
+from suture_common.bag_io import BagDamage, BagError
+from suture_segmentation.metrics import CentrelineCounts, centreline_counts
 
 SOURCES = ("predicted", "ground_truth")
 
@@ -54,6 +70,14 @@ class _Tally:
 
     frames: int = 0
     pixels: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))  # tp, fp, fn
+    centreline: CentrelineCounts = field(default_factory=CentrelineCounts)
+    produced: int = 0
+    reprojection_mean: list[float] = field(default_factory=list)
+    reprojection_max: list[float] = field(default_factory=list)
+    unscored: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    skipped: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    visibility: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    damaged: list[dict[str, Any]] = field(default_factory=list)
     ordering: dict[str, list[bool]] = field(default_factory=lambda: defaultdict(list))
     recon_mean: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     recon_max: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
@@ -78,13 +102,16 @@ def evaluate(
     seg_weights: str | None = None,
     use_images: bool = True,
     use_low_masks: bool = True,
+    report: str | Path | None = None,
+    max_overlays: int = 20,
 ) -> dict:
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
     ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
     a shipped name, ``m_tosot`` or ``m_ost``); None is the stage's default (shipped M-ToSOT).
     ``use_images``: refine the 3D stage's disparity with the images; ``use_low_masks``: give the
-    ordering the low masks of the predicted masks (module docstring).
+    ordering the low masks of the predicted masks (module docstring). ``report``: a folder for
+    the per-frame JSON and pictures (``suture_bench.report``), at most ``max_overlays`` overlays.
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
@@ -94,13 +121,30 @@ def evaluate(
         scoreboard.tally.note("reconstruction: from the sequences alone (images not used)")
     if masks == "predicted" and not use_low_masks:
         scoreboard.tally.note("ordering: from the masks alone (low masks not used)")
+    writer = None
+    if report is not None:
+        from suture_bench.report import ReportWriter
+
+        writer = ReportWriter(report, max_overlays)
+    images = masks == "predicted" or use_images or writer is not None
     for bag in find_bags(paths):
+        skipped: Counter = Counter()
+        damage = BagDamage()
+        read = 0
         try:
-            for frame in read_frames(bag, images=masks == "predicted" or use_images):
-                scoreboard.add(frame, _run_frame(frame, stages))
+            for frame in read_frames(bag, images=images, complete=False, skipped=skipped, damage=damage):
+                read += 1
+                outputs = _run_frame(frame, stages)
+                record = scoreboard.add(frame, outputs)
+                if writer is not None:
+                    writer.add(frame, outputs, record)
         except BagError as error:
             raise EvaluationError(str(error)) from error
-    return scoreboard.summary(masks, sequences)
+        scoreboard.bag_done(bag, read, skipped, damage)
+    summary = scoreboard.summary(masks, sequences)
+    if writer is not None:
+        writer.finish(summary)
+    return summary
 
 
 class _Stages:
@@ -148,7 +192,10 @@ class StageOutputs:
     ``masks``: predicted (left, right) (H, W) masks, None when the true masks were used;
     ``sequences``: predicted (left, right) (N, 2) sequences, None when the ordering stage did
     not run or failed; ``path`` (M, 3) m and ``grasp`` (3,) m, None when the 3D stage failed;
-    ``failure``: 'stage: reason' of the first stage that gave nothing; ``latency_ms``: per stage.
+    ``failure``: 'stage: reason' of the first stage that gave nothing (a refusal);
+    ``not_run``: why the stages could not start on this frame (the bag lacks the true masks or
+    sequences they were asked to start from); ``used_masks``: the (left, right) masks the
+    ordering worked from (predicted or true); ``latency_ms``: per stage.
     """
 
     masks: tuple[np.ndarray, np.ndarray] | None = None
@@ -158,6 +205,8 @@ class StageOutputs:
     failure: str | None = None
     detail: str | None = None
     latency_ms: dict[str, float] = field(default_factory=dict)
+    not_run: str | None = None
+    used_masks: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class Scoreboard:
@@ -174,7 +223,7 @@ class Scoreboard:
     def add(self, frame: Frame, outputs: StageOutputs) -> dict[str, Any]:
         """Score one frame's outputs; returns its per-frame record (also kept in the summary)."""
         from suture_bench.ordering_metrics import ordering_success
-        from suture_bench.reconstruction_metrics import score_reconstruction
+        from suture_bench.reconstruction_metrics import reprojection_to_masks, score_reconstruction
 
         tally = self.tally
         tally.frames += 1
@@ -182,28 +231,44 @@ class Scoreboard:
         tally.per_frame.append(record)
         for stage, ms in outputs.latency_ms.items():
             tally.latency[stage].append(ms)
+        if outputs.not_run is not None:
+            tally.unscored[f"not run: {outputs.not_run}"] += 1
+            record.update(not_run=outputs.not_run, grasp_produced=False)
+            return record
         if outputs.masks is not None:
-            truths = (frame.true_left_mask, frame.true_right_mask)
-            for predicted, truth in zip(outputs.masks, truths, strict=True):
-                predicted = np.asarray(predicted) > 0
-                tally.pixels += [
-                    np.sum(predicted & truth),
-                    np.sum(predicted & ~truth),
-                    np.sum(~predicted & truth),
-                ]
+            record["segmentation"] = self._score_masks(frame, outputs.masks)
         if outputs.failure is not None:
             tally.failures[outputs.failure] += 1
             record["failure"] = outputs.failure
             if outputs.detail:
                 record["failure_detail"] = outputs.detail
         if self.ordering_ran:
-            success = outputs.sequences is not None and bool(
-                ordering_success(outputs.sequences[0], frame.true_left_sequence).success
-            )
-            tally.ordering[frame.topology].append(success)
-            record["ordering_success"] = success
-        if outputs.path is None or outputs.grasp is None:
-            tally.grasp_missing[frame.topology] += 1
+            if frame.true_left_sequence is None:
+                tally.unscored["ordering: the bag has no true sequence"] += 1
+            else:
+                tally.visibility[frame.visibility] += 1
+                score = None
+                if outputs.sequences is not None:
+                    score = ordering_success(outputs.sequences[0], frame.true_left_sequence)
+                success = score is not None and bool(score.success)
+                tally.ordering[frame.topology].append(success)
+                record["ordering_success"] = success
+                record["ordering"] = "no sequence" if score is None else score.reason
+        record["grasp_produced"] = outputs.path is not None and outputs.grasp is not None
+        if not record["grasp_produced"]:
+            if frame.true_path is not None and frame.true_grasp is not None:
+                tally.grasp_missing[frame.topology] += 1
+            return record
+        tally.produced += 1
+        record["grasp_position"] = np.asarray(outputs.grasp).tolist()
+        masks = outputs.used_masks if outputs.used_masks is not None else outputs.masks
+        if masks is not None:
+            consistency = reprojection_to_masks(np.asarray(outputs.path), frame.camera, masks)
+            tally.reprojection_mean.append(consistency["mean_px"])
+            tally.reprojection_max.append(consistency["max_px"])
+            record["reprojection_px"] = consistency
+        if frame.true_path is None or frame.true_grasp is None:
+            tally.unscored["reconstruction: the bag has no true 3D path and grasp pose"] += 1
             return record
         score = score_reconstruction(outputs.path, frame.true_path, outputs.grasp, frame.true_grasp)
         tally.recon_mean[frame.topology].append(score.mean_error)
@@ -211,11 +276,43 @@ class Scoreboard:
         tally.length_error[frame.topology].append(abs(score.length_error))
         tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
         tally.grasp[frame.topology].append(score.grasp_error)
-        record.update(score.as_mm(), grasp_position=np.asarray(outputs.grasp).tolist())
+        record.update(score.as_mm())
         return record
 
+    def _score_masks(self, frame: Frame, masks: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
+        """Pool the views that have a true mask; per-view figures for the frame's record."""
+        tally = self.tally
+        scores: dict[str, Any] = {}
+        truths = (frame.true_left_mask, frame.true_right_mask)
+        for view, predicted, truth in zip(("left", "right"), masks, truths, strict=True):
+            if truth is None:
+                continue
+            predicted = np.asarray(predicted) > 0
+            counts = [np.sum(predicted & truth), np.sum(predicted & ~truth), np.sum(~predicted & truth)]
+            tally.pixels += counts
+            centreline = centreline_counts(predicted, truth)
+            tally.centreline = tally.centreline + centreline
+            tp, fp, fn = (int(c) for c in counts)
+            scores[view] = {"iou": tp / (tp + fp + fn) if tp + fp + fn else None, **centreline.figures()}
+        if not scores:
+            tally.unscored["segmentation: the bag has no true masks"] += 1
+        return scores
+
+    def bag_done(self, bag: Path, frames: int, skipped: Counter, damage: BagDamage) -> None:
+        """Count what one bag did not give as frames: stamps without a frame's topics, damage."""
+        tally = self.tally
+        for reason, count in skipped.items():
+            tally.skipped[reason] += count
+            tally.note(f"{bag}: {count} stamp(s) skipped as not a stereo frame ({reason})")
+        if damage.damaged:
+            expected = None if damage.expected is None else damage.expected.get(topics.LEFT_CAMERA_INFO)
+            lost = None if expected is None else max(0, expected - frames)
+            tally.damaged.append({"bag": str(bag), "error": damage.error, "frames": frames, "lost": lost})
+            shown = "an unknown number (the bag has no metadata.yaml)" if lost is None else str(lost)
+            tally.note(f"{damage.error}: {frames} frame(s) read, {shown} lost")
+
     def summary(self, masks: str, sequences: str) -> dict:
-        """The JSON summary of DESIGN.md's evaluation contract (plus ``per_frame``)."""
+        """The JSON summary of the evaluation contract (plus ``per_frame``)."""
         return _summary(self.tally, masks, sequences)
 
 
@@ -223,14 +320,26 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
     """Run the stages the sources ask for on one frame (the nodes' core functions)."""
     outputs = StageOutputs()
     masks, low_masks = (frame.true_left_mask, frame.true_right_mask), None
+    if stages.segment is None and stages.order is not None and (masks[0] is None or masks[1] is None):
+        outputs.not_run = "the bag has no true masks to start the ordering from (--masks ground_truth)"
+        return outputs
+    if stages.order is None and (frame.true_left_sequence is None or frame.true_right_sequence is None):
+        outputs.not_run = (
+            "the bag has no true sequences to start the 3D stage from (--sequences ground_truth)"
+        )
+        return outputs
     if stages.segment is not None:
         start = time.perf_counter()
         masks, low_masks = stages.segment(frame.left_image, frame.right_image)
         outputs.latency_ms["segmentation"] = _elapsed_ms(start)
         outputs.masks = masks
 
-    sequences = (frame.true_left_sequence[:, :2], frame.true_right_sequence[:, :2])
-    if stages.order is not None:
+    if stages.order is None:
+        sequences = (frame.true_left_sequence[:, :2], frame.true_right_sequence[:, :2])
+        if masks[0] is not None and masks[1] is not None:
+            outputs.used_masks = masks
+    else:
+        outputs.used_masks = masks
         start = time.perf_counter()
         try:
             ordering = stages.order(masks[0], masks[1], frame.tip_hint, frame.camera, low_masks=low_masks)
@@ -287,6 +396,7 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
         }
     elif masks == "ground_truth":
         tally.note("segmentation: not run (--masks ground_truth)")
+    segmentation.update(tally.centreline.figures())
     all_ordering = [ok for values in tally.ordering.values() for ok in values]
     if sequences == "ground_truth":
         tally.note("ordering: not run (--sequences ground_truth)")
@@ -296,9 +406,28 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
     # Frames without a grasp point count as misses: "within 5 mm" is a share of all frames.
     scored_frames = len(all_grasp) + sum(tally.grasp_missing.values())
     for failure, count in sorted(tally.failures.items()):
+        if scored_frames:
+            tally.note(
+                f"{failure} in {count} frame(s): excluded from the error figures, "
+                "counted as misses in within_5mm"
+            )
+        else:
+            tally.note(f"{failure} in {count} frame(s): no grasp produced")
+    for reason, count in sorted(tally.unscored.items()):
+        tally.note(f"{reason}: {count} frame(s) not scored there")
+    if tally.visibility.get("mask"):
         tally.note(
-            f"{failure} in {count} frame(s): excluded from the error figures, counted as misses in within_5mm"
+            f"ordering: {tally.visibility['mask']} frame(s) have true sequences without a visibility flag "
+            "(z = 0): visibility from the true masks"
         )
+    if tally.visibility.get("assumed"):
+        tally.note(
+            f"ordering: {tally.visibility['assumed']} frame(s) have true sequences without a visibility flag "
+            "and no true mask: the whole sequence counted as visible"
+        )
+    if tally.frames == 0:
+        why = "; ".join(f"{n} stamp(s) with {r}" for r, n in sorted(tally.skipped.items())) or "no messages"
+        tally.note(f"no stereo frame (both camera_info messages and both images) in the bags: {why}")
     return {
         "frames": tally.frames,
         "masks": masks,
@@ -333,7 +462,17 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
             "within_5mm": (
                 float(np.sum(np.asarray(all_grasp) <= 0.005)) / scored_frames if scored_frames else None
             ),
+            "produced": tally.produced,
+            "refused": dict(sorted(tally.failures.items())),
         },
+        "self_consistency": {
+            "reprojection_mean_px": _mean(tally.reprojection_mean),
+            "reprojection_max_px": float(np.max(tally.reprojection_max)) if tally.reprojection_max else None,
+            "frames": len(tally.reprojection_mean),
+        },
+        "unscored": dict(sorted(tally.unscored.items())),
+        "skipped": dict(sorted(tally.skipped.items())),
+        "damaged": tally.damaged,
         "latency_ms": _latency(tally, 50),
         "latency_p95_ms": _latency(tally, 95),
         "notes": tally.notes,

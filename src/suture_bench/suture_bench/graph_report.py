@@ -5,14 +5,11 @@ outputs (``ros2_ws/launch.sh --bag BAG --record OUTPUTS``). This command joins t
 recorded outputs with the bag's ground truth by header stamp, scores them with the
 same :class:`suture_bench.evaluate.Scoreboard` as ``suture-eval`` (one truth for both),
 prints per frame the grasp point in the camera and robot frames and its error, and
-writes a report folder::
-
-    OUT/summary.json         DESIGN.md's evaluation summary of the graph's outputs, plus "graph":
-                             the player's latency figures and the nodes' peak memory when given
-    OUT/frames.json          per frame: stamp, topology, grasp in camera and robot frames, error
-    OUT/overlays/*.png       left image, predicted mask, sequence from blue (cut tip) to red,
-                             predicted grasp point (yellow ring) and the true one (cyan cross)
-    OUT/centreline_3d.png    reconstructed (red) against true (black) 3D centrelines
+writes the report folder of :mod:`suture_bench.report` (the same as ``suture-eval
+--report``): ``summary.json`` (the evaluation summary of the graph's outputs, plus "graph":
+the player's latency figures and the nodes' peak memory when given), ``frames.json`` and
+``frames/`` (per frame also the grasp in camera and robot frames), ``overlays/`` and
+``centreline_3d.png``.
 
 Per-stage latencies come from the recorder's receive times (``ros2 bag record``'s log
 time) relative to the player's publication time of the frame, so they include transport.
@@ -34,18 +31,16 @@ from collections import defaultdict
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
-import cv2
 import numpy as np
 
 from suture_bench.cli import render_table
 from suture_bench.evaluate import Scoreboard, StageOutputs
 from suture_bench.frames import EvaluationError, Frame, read_frames
+from suture_bench.report import ReportWriter
 from suture_common import messages, topics
 from suture_common.bag_io import read_messages
-from suture_ordering.figures import draw_sequence
 
 TARGET_POSE = topics.TARGET_POSE
 OUTPUT_TOPICS = (
@@ -143,61 +138,6 @@ def _vector_mm(vector: np.ndarray | None) -> str:
     return "(" + ", ".join(f"{1000 * float(x):+8.1f}" for x in vector) + ") mm"
 
 
-def draw_overlay(frame: Frame, outputs: StageOutputs, error_mm: float | None) -> np.ndarray:
-    """(H, W, 3) uint8 RGB: the left image, the predicted mask, the sequence and the grasp points."""
-    canvas = np.ascontiguousarray(frame.left_image.copy())
-    if outputs.masks is not None:
-        mask = outputs.masks[0] > 0
-        canvas[mask] = (0.5 * canvas[mask] + 0.5 * np.array([255, 0, 255])).astype(np.uint8)
-    if outputs.sequences is not None and len(outputs.sequences[0]) > 1:
-        left = outputs.sequences[0]
-        sequence = SimpleNamespace(points=left, bridged=np.zeros(len(left), bool), tip=left[0])
-        canvas = draw_sequence(canvas, sequence)
-    true_uv = frame.camera.project(frame.true_grasp[None], "left")[0]
-    cv2.drawMarker(canvas, tuple(round(float(x)) for x in true_uv), (0, 255, 255), cv2.MARKER_CROSS, 14, 2)
-    if outputs.grasp is not None:
-        uv = frame.camera.project(np.asarray(outputs.grasp)[None], "left")[0]
-        cv2.circle(canvas, tuple(round(float(x)) for x in uv), 8, (255, 255, 0), 2, cv2.LINE_AA)
-    text = f"{frame.topology}  grasp error " + ("n/a" if error_mm is None else f"{error_mm:.2f} mm")
-    cv2.putText(canvas, text, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
-    return canvas
-
-
-def plot_centrelines(panels: list[tuple[Frame, StageOutputs]], path: Path) -> None:
-    """Reconstructed (red) and true (black) 3D centrelines of up to 10 frames, mm, camera frame."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = panels[:10]
-    columns = min(5, max(1, len(panels)))
-    rows = max(1, -(-len(panels) // columns))
-    figure = plt.figure(figsize=(3.2 * columns, 3.2 * rows))
-    for index, (frame, outputs) in enumerate(panels):
-        axes = figure.add_subplot(rows, columns, index + 1, projection="3d")
-        true = 1000 * frame.true_path
-        axes.plot(true[:, 0], true[:, 1], true[:, 2], color="black", linewidth=1.5, label="true")
-        axes.scatter(*(1000 * frame.true_grasp), color="black", s=20)
-        if outputs.path is not None:
-            ours = 1000 * np.asarray(outputs.path)
-            axes.plot(ours[:, 0], ours[:, 1], ours[:, 2], color="red", linewidth=1, label="reconstructed")
-            axes.scatter(*(1000 * np.asarray(outputs.grasp)), color="red", s=20)
-        # equal scale on all axes: depth errors look as large as they are, not stretched
-        shown = true if outputs.path is None else np.vstack([true, 1000 * np.asarray(outputs.path)])
-        axes.set_box_aspect(np.maximum(np.ptp(shown, axis=0), 1.0))
-        axes.set_title(frame.topology, fontsize=9)
-        axes.invert_zaxis()
-        axes.tick_params(labelsize=6)
-        axes.zaxis.set_major_locator(plt.MaxNLocator(2))
-        if index == 0:
-            axes.legend(fontsize=7, loc="upper left")
-    figure.suptitle("3D centreline, left camera frame (mm): reconstructed (red) vs true (black)", fontsize=10)
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-
-
 def write_report(
     bag: str | Path,
     outputs_bag: str | Path,
@@ -211,13 +151,11 @@ def write_report(
 
     Returns the summary written to ``OUT/summary.json``.
     """
-    out = Path(out)
-    (out / "overlays").mkdir(parents=True, exist_ok=True)
+    writer = ReportWriter(out, max_overlays)
     recorded = read_outputs(outputs_bag)
     published = _published_ns(player_report)
     scoreboard = Scoreboard(ordering_ran=True)
     rows: list[dict[str, Any]] = []
-    panels: list[tuple[Frame, StageOutputs]] = []
     for index, frame in enumerate(read_frames(Path(bag), images=True)):
         got = recorded.get(frame.stamp_ns)
         outputs = stage_outputs(frame, got, published.get(frame.stamp_ns))
@@ -226,17 +164,15 @@ def write_report(
         robot = None
         if got is not None and TARGET_POSE in got.messages:
             robot = messages.pose_to_arrays(got.messages[TARGET_POSE])[0]
-        rows.append(
-            {
-                "stamp_ns": frame.stamp_ns,
-                "topology": frame.topology,
-                "grasp_camera_m": None if outputs.grasp is None else np.asarray(outputs.grasp).tolist(),
-                "grasp_robot_m": None if robot is None else robot.tolist(),
-                "grasp_error_mm": error,
-                "failure": outputs.failure,
-                "latency_ms": outputs.latency_ms,
-            }
-        )
+        row = {
+            **record,
+            "grasp_camera_m": None if outputs.grasp is None else np.asarray(outputs.grasp).tolist(),
+            "grasp_robot_m": None if robot is None else robot.tolist(),
+            "grasp_error_mm": error,
+            "failure": outputs.failure,
+        }
+        rows.append(row)
+        writer.add(frame, outputs, row)
         if echo:
             shown = "n/a" if error is None else f"{error:5.2f} mm"
             print(
@@ -244,14 +180,8 @@ def write_report(
                 f"robot {_vector_mm(robot)}  error {shown}"
                 + (f"  [{outputs.failure}]" if outputs.failure else "")
             )
-        if index < max_overlays:
-            picture = draw_overlay(frame, outputs, error)
-            name = f"{index:03d}_{frame.topology}.png"
-            cv2.imwrite(str(out / "overlays" / name), cv2.cvtColor(picture, cv2.COLOR_RGB2BGR))
-        panels.append((frame, outputs))
     if not rows:
         raise EvaluationError(f"{bag}: no frames with ground truth to report on")
-    plot_centrelines(panels, out / "centreline_3d.png")
     summary = scoreboard.summary("predicted", "predicted")
     summary.pop("per_frame")
     summary["graph"] = {
@@ -259,8 +189,7 @@ def write_report(
         "peak_memory_mib": memory or {},
         "frames_with_grasp_pose": sum(row["grasp_camera_m"] is not None for row in rows),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    (out / "frames.json").write_text(json.dumps(rows, indent=2))
+    writer.finish(summary)
     return summary
 
 

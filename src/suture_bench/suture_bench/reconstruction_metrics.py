@@ -10,6 +10,8 @@ Pure metrics (no I/O), called by ``suture-eval`` and by the benchmark below:
   driven to a computed key point is from the suture), and the grasp point error
   (3D distance to the true grasp point, Table III).
 * :func:`summarise` aggregates frames per topology.
+* :func:`reprojection_to_masks` measures a reconstruction without 3D truth: how far its
+  path, projected into each view, lands from that view's mask (stereo self-consistency).
 
 Everything is in metres; reports print millimetres.
 
@@ -34,9 +36,11 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from suture_bench.frames import Frame, find_bags, read_frames
+from suture_common.camera import StereoCamera
 from suture_reconstruction import ReconstructionError, ReconstructionParams, reconstruct
 
 KEYPOINTS = 10
@@ -151,6 +155,38 @@ def score_reconstruction(
         keypoint_errors=keypoints,
         grasp_error=grasp_error,
     )
+
+
+def reprojection_to_masks(
+    path: np.ndarray, camera: StereoCamera, masks: tuple[np.ndarray, np.ndarray]
+) -> dict[str, float]:
+    """Stereo self-consistency of a reconstructed (N, 3) ``path``: its points projected into the
+    left and right views, and each pixel's distance to the nearest pixel of that view's mask.
+
+    Returns ``mean_px`` (over both views' points), ``max_px``, and ``left_mean_px`` /
+    ``right_mean_px``. A point projecting outside the image is measured from the nearest
+    border pixel. A view with an empty mask gives inf.
+    """
+    figures: dict[str, float] = {}
+    distances = []
+    for view, mask in zip(("left", "right"), masks, strict=True):
+        mask = np.asarray(mask) > 0
+        if not mask.any():
+            distance = np.full(len(path), np.inf)
+        else:
+            to_mask = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+            uv = camera.project(np.asarray(path, dtype=np.float64), view)
+            inside = np.isfinite(uv).all(axis=1)
+            u = np.clip(uv[inside, 0], 0, mask.shape[1] - 1)
+            v = np.clip(uv[inside, 1], 0, mask.shape[0] - 1)
+            border = np.hypot(uv[inside, 0] - u, uv[inside, 1] - v)
+            distance = np.full(len(path), np.inf)
+            distance[inside] = to_mask[np.rint(v).astype(int), np.rint(u).astype(int)] + border
+        figures[f"{view}_mean_px"] = float(distance.mean())
+        distances.append(distance)
+    both = np.concatenate(distances)
+    figures.update(mean_px=float(both.mean()), max_px=float(both.max()))
+    return figures
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ def test_ground_truth_sequences_isolate_the_3d_stage():
     summary = evaluate([SAMPLE], masks="ground_truth", sequences="ground_truth")
     assert set(summary) >= KEYS
     assert summary["frames"] == 10
-    assert summary["segmentation"] == {"iou": None, "precision": None, "recall": None, "f1": None}
+    assert set(summary["segmentation"].values()) == {None}
     assert summary["ordering"]["success_rate"] is None
     assert any("segmentation" in note for note in summary["notes"])
     assert any("ordering" in note for note in summary["notes"])

@@ -15,6 +15,11 @@ exactly one ``.mcap`` file and no metadata (e.g. a copied or Foxglove-exported
 recording), or a single ``.mcap`` file (rosbags reads its summary section
 directly). Messages come in timestamp order.
 
+A damaged MCAP file (a recording cut short by a crash, so without its summary and
+end magic) is refused unless the caller passes a :class:`BagDamage` to the reader: then
+every message in the readable part of the file is returned and the object says what
+was lost (the counts a bag's ``metadata.yaml`` promised, where it has one).
+
 Every problem with a bag on disk (missing, not a bag, corrupt, existing or
 unwritable target) raises :class:`BagError`, a subclass of ``OSError`` so that
 command-line tools can report all file problems in one ``except OSError``.
@@ -26,14 +31,19 @@ from __future__ import annotations
 
 import functools
 import shutil
+from collections import Counter
 from collections.abc import Collection, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from numbers import Integral
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
+import yaml
+from mcap.exceptions import McapError
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
 from rosbags.rosbag2 import (
     CompressionFormat,
     CompressionMode,
@@ -68,6 +78,30 @@ class BagMessage:
     msgtype: str
     timestamp_ns: int
     message: Any
+
+
+@dataclass
+class BagDamage:
+    """What a reader could not read of a damaged bag; pass one to :func:`read_raw`/:func:`read_messages`.
+
+    ``error``: why the bag is damaged, None while it read whole; ``read``: messages read per
+    topic (of the topics asked for); ``expected``: messages per topic that the bag's
+    ``metadata.yaml`` lists, None without one.
+    """
+
+    error: str | None = None
+    read: Counter = field(default_factory=Counter)
+    expected: dict[str, int] | None = None
+
+    @property
+    def damaged(self) -> bool:
+        return self.error is not None
+
+    def lost(self, topic: str) -> int | None:
+        """Messages of ``topic`` the damage cost (None when the bag does not say how many it had)."""
+        if self.expected is None or topic not in self.expected:
+            return None
+        return max(0, self.expected[topic] - self.read[topic])
 
 
 class BagWriter:
@@ -220,15 +254,18 @@ class BagWriter:
             self.abort()
 
 
-def read_messages(path: str | Path, topics: Collection[str] | None = None) -> Iterator[BagMessage]:
+def read_messages(
+    path: str | Path, topics: Collection[str] | None = None, damage: BagDamage | None = None
+) -> Iterator[BagMessage]:
     """Deserialised messages of the bag at ``path`` in timestamp order.
 
     ``topics`` restricts the output; topics absent from the bag are ignored (use
     :func:`bag_summary` to check for them). The bag is checked when this is
     called, so a missing or invalid bag raises :class:`BagError` immediately; a
     message type outside ROS 2 Jazzy's standard set raises it when reached.
+    ``damage``: read what can be read of a damaged MCAP file (see :func:`read_raw`).
     """
-    raw = read_raw(path, topics)
+    raw = read_raw(path, topics, damage)
 
     def generate() -> Iterator[BagMessage]:
         for topic, msgtype, timestamp, data in raw:
@@ -243,18 +280,30 @@ def read_messages(path: str | Path, topics: Collection[str] | None = None) -> It
 
 
 def read_raw(
-    path: str | Path, topics: Collection[str] | None = None
+    path: str | Path, topics: Collection[str] | None = None, damage: BagDamage | None = None
 ) -> Iterator[tuple[str, str, int, bytes]]:
     """``(topic, msgtype, timestamp_ns, cdr_bytes)`` of the bag at ``path`` in timestamp order.
 
     ``msgtype`` is like ``'sensor_msgs/msg/Image'``; ``cdr_bytes`` is the CDR
     serialisation with its 4-byte encapsulation header, as rclpy's
     ``deserialize_message`` takes it. ``topics`` as in :func:`read_messages`.
+
+    ``damage``: without it a damaged bag raises :class:`BagError`; with it, an MCAP file
+    that cannot be opened (cut short, no summary) is read record by record up to the
+    damage, its messages are returned (sorted by time), and ``damage`` is filled in.
     """
     source = _bag_source(path)
-    with _open_reader(source, path):  # check now, not at the first next()
-        pass
     wanted = None if topics is None else set(_check_topics(topics))
+    if damage is not None:
+        damage.expected = _expected_counts(path)
+    try:
+        with _open_reader(source, path):  # check now, not at the first next()
+            pass
+    except BagError as error:
+        mcap_file = _mcap_file(source)
+        if damage is None or mcap_file is None or isinstance(error.__cause__, PermissionError):
+            raise
+        return _salvage(mcap_file, path, wanted, damage, str(error))
 
     def generate() -> Iterator[tuple[str, str, int, bytes]]:
         with _open_reader(source, path) as reader:
@@ -263,9 +312,70 @@ def read_raw(
                 return
             try:
                 for connection, timestamp, data in reader.messages(connections=connections):
+                    if damage is not None:
+                        damage.read[connection.topic] += 1
                     yield connection.topic, connection.msgtype, timestamp, bytes(data)
             except ReaderError as exc:
-                raise BagError(f"{path}: bag is corrupt: {exc}") from exc
+                if damage is None:
+                    raise BagError(f"{path}: bag is corrupt: {exc}") from exc
+                damage.error = f"{path}: bag is corrupt: {exc}"
+
+    return generate()
+
+
+def _mcap_file(source: Path) -> Path | None:
+    """The MCAP file of a bag source (the directory's single storage file), if there is one."""
+    if source.suffix == ".mcap":
+        return source
+    mcaps = sorted(source.glob("*.mcap"))
+    return mcaps[0] if len(mcaps) == 1 else None
+
+
+def _expected_counts(path: str | Path) -> dict[str, int] | None:
+    """Messages per topic that a bag directory's metadata.yaml lists (None without a readable one)."""
+    metadata = Path(path) / "metadata.yaml"
+    if not metadata.is_file():
+        return None
+    try:
+        info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+        return {
+            entry["topic_metadata"]["name"]: int(entry["message_count"])
+            for entry in info["topics_with_message_count"]
+        }
+    except (yaml.YAMLError, KeyError, TypeError, ValueError):
+        return None
+
+
+def _salvage(
+    mcap_file: Path, shown: str | Path, wanted: set[str] | None, damage: BagDamage, error: str
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """Messages of the readable part of a damaged MCAP file, sorted by time; fills ``damage``."""
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, str]] = {}
+    found: list[tuple[int, int, str, str, bytes]] = []
+    try:
+        with open(mcap_file, "rb") as stream:
+            for record in StreamReader(stream).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    topic, msgtype = channels[record.channel_id]
+                    if wanted is None or topic in wanted:
+                        found.append((record.log_time, len(found), topic, msgtype, record.data))
+        damage.error = error  # opened record by record to its end: only the summary was broken
+    except (McapError, EOFError, ValueError, OSError) as exc:
+        if not channels:
+            raise BagError(f"{shown} is not a readable rosbag2/MCAP bag: {error}") from exc
+        where = f"{type(exc).__name__} {exc}".strip()
+        damage.error = f"{shown}: MCAP file damaged or cut short ({where}); read up to the damage"
+    found.sort()
+    damage.read.update(topic for _, _, topic, _, _ in found)
+
+    def generate() -> Iterator[tuple[str, str, int, bytes]]:
+        for timestamp, _, topic, msgtype, data in found:
+            yield topic, msgtype, timestamp, bytes(data)
 
     return generate()
 

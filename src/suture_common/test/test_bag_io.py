@@ -10,7 +10,15 @@ import yaml
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from suture_common.bag_io import BagError, BagMessage, BagWriter, bag_summary, read_messages, read_raw
+from suture_common.bag_io import (
+    BagDamage,
+    BagError,
+    BagMessage,
+    BagWriter,
+    bag_summary,
+    read_messages,
+    read_raw,
+)
 from suture_common.camera import StereoCamera
 from suture_common.messages import (
     TYPESTORE,
@@ -411,3 +419,29 @@ def test_truncated_mcap(bag, tmp_path):
     (tmp_path / "cut.mcap").write_bytes(data[: len(data) // 2])
     with pytest.raises(BagError):
         list(read_raw(tmp_path / "cut.mcap"))
+
+
+def test_a_cut_bag_is_read_up_to_the_cut_with_the_loss_stated(tmp_path):
+    bag = Path(__file__).resolve().parents[3] / "bags" / "sample"  # several chunks
+    whole = list(read_raw(bag))
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    (cut / "metadata.yaml").write_text((bag / "metadata.yaml").read_text())
+    data = mcap_file(bag).read_bytes()
+    (cut / mcap_file(bag).name).write_bytes(data[: len(data) // 2])
+    damage = BagDamage()
+    salvaged = list(read_raw(cut, damage=damage))
+    assert damage.damaged and "cut short" in damage.error
+    assert 0 < len(salvaged) < len(whole)
+    assert salvaged == whole[: len(salvaged)]  # in time order, the same bytes
+    expected = {topic: count for topic, (_, count) in bag_summary(bag).items()}
+    assert damage.expected == expected
+    assert sum(damage.lost(topic) for topic in expected) == len(whole) - len(salvaged)
+    # deserialised as well; a whole bag reports no damage
+    assert len(list(read_messages(cut, damage=BagDamage()))) == len(salvaged)
+    intact = BagDamage()
+    assert len(list(read_raw(bag, damage=intact))) == len(whole) and not intact.damaged
+    # not an MCAP file at all: still refused
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
+    with pytest.raises(BagError):
+        read_raw(tmp_path / "junk.mcap", damage=BagDamage())

@@ -38,8 +38,16 @@ PAPER_TABLE_I: dict[str, dict[str, dict[str, float]]] = {
     },
 }
 
-METRICS = ("iou", "precision", "recall", "f1")
-_LABELS = {"iou": "IoU", "precision": "Precision", "recall": "Recall", "f1": "F1"}
+METRICS = ("iou", "precision", "recall", "f1", "centreline_recall", "centreline_precision", "cldice")
+_LABELS = {
+    "iou": "IoU",
+    "precision": "Precision",
+    "recall": "Recall",
+    "f1": "F1",
+    "centreline_recall": "Centreline recall",
+    "centreline_precision": "Centreline precision",
+    "cldice": "clDice",
+}
 
 #: results[set][model] = per-image scores, in the set's file-name order.
 Results = dict[str, dict[str, list[MaskScores]]]
@@ -74,6 +82,8 @@ def markdown_table(results: Results) -> str:
         means = {m: mean_scores(scores) for m, scores in by_model.items()}
         for metric in METRICS:
             values = [getattr(means[m], metric) for m in models]
+            if any(v is None for v in values):
+                continue
             best = int(np.argmax(values))
             cells = [f"**{100 * v:.1f}**" if k == best else f"{100 * v:.1f}" for k, v in enumerate(values)]
             lines.append(f"| {set_name} | {_LABELS[metric]} | " + " | ".join(cells) + " |")

@@ -71,7 +71,7 @@ def test_scores_of_a_known_prediction() -> None:
 def test_scores_of_empty_masks() -> None:
     empty = np.zeros((4, 4), bool)
     full = np.ones((4, 4), bool)
-    assert score_mask(empty, empty) == MaskScores(1.0, 1.0, 1.0, 1.0)
+    assert score_mask(empty, empty) == MaskScores(1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
     assert score_mask(empty, full).recall == 0.0 and score_mask(empty, full).iou == 0.0
     assert score_mask(full, empty).precision == 0.0
     with pytest.raises(ValueError, match="shapes differ"):

@@ -103,6 +103,9 @@ def test_train_finetune_export_evaluate_bench_commands(
     assert "| Set 1 | IoU |" in table and "| A | B |" in table.replace("metric | ", "")
     scores = json.loads((report / "scores.json").read_text())
     assert len(scores["Set 1"]["A"]["per_image"]) == 4
+    # thin-structure figures beside IoU
+    assert "| Set 1 | Centreline recall |" in table and "| Set 1 | clDice |" in table
+    assert 0 <= scores["Set 1"]["A"]["mean"]["centreline_recall"] <= 1
     assert (report / "per_image.png").stat().st_size > 0
     assert (report / "overlays_set1.png").stat().st_size > 0
 

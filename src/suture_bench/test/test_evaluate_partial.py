@@ -1,0 +1,125 @@
+"""suture-eval on bags that carry less than the simulator's: true masks only, sequences with
+z = 0, damaged files, no frames at all; and ``--report``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from suture_bench.evaluate import Scoreboard, StageOutputs, evaluate
+from suture_bench.frames import read_frames
+from suture_common import messages, topics
+from suture_common.bag_io import BagWriter, read_raw
+from suture_common.camera import StereoCamera
+from suture_sim.output import write_frame
+from suture_sim.scene import SimConfig, generate_frame
+
+SAMPLE = Path(__file__).resolve().parents[3] / "bags" / "sample"
+THREE_D_TRUTH = {topics.GT_PATH, topics.GT_GRASP_POSE, topics.GT_LEFT_SEQUENCE, topics.GT_RIGHT_SEQUENCE}
+
+
+@pytest.fixture(scope="module")
+def sim_bag(tmp_path_factory) -> Path:
+    """Three small legacy-domain simulator frames (320x240)."""
+    path = tmp_path_factory.mktemp("sim") / "bag"
+    config = SimConfig(topology="mixed", camera=StereoCamera.default(320, 240), seed=2201)
+    with BagWriter(path) as writer:
+        for index in range(3):
+            write_frame(writer, generate_frame(config, index))
+    return path
+
+
+def copy_bag(source: Path, target: Path, drop=frozenset(), flatten_sequences: bool = False) -> Path:
+    """A copy of ``source`` without the ``drop`` topics; sequences with z = 0 when asked."""
+    with BagWriter(target) as writer:
+        for topic, msgtype, stamp, data in read_raw(source):
+            if topic in drop:
+                continue
+            if flatten_sequences and topic in (topics.GT_LEFT_SEQUENCE, topics.GT_RIGHT_SEQUENCE):
+                message = messages.TYPESTORE.deserialize_cdr(data, msgtype)
+                points = messages.polygon_to_array(message)
+                points[:, 2] = 0.0
+                frame_id = message.header.frame_id
+                writer.write(topic, messages.polygon_message(points, stamp, frame_id), stamp)
+                continue
+            writer.write_raw(topic, msgtype, data, stamp)
+    return target
+
+
+def test_a_bag_with_true_masks_only_reports_what_it_can(sim_bag, tmp_path):
+    bag = copy_bag(sim_bag, tmp_path / "masks_only", drop=THREE_D_TRUTH)
+    summary = evaluate([bag], masks="predicted", sequences="predicted", seg_weights="m_ost")
+    assert summary["frames"] == 3
+    segmentation = summary["segmentation"]
+    assert segmentation["iou"] > 0.4 and segmentation["centreline_recall"] > 0.5
+    assert 0 < segmentation["cldice"] <= 1
+    grasp = summary["grasp"]
+    assert grasp["produced"] + sum(grasp["refused"].values()) == 3 and grasp["produced"] >= 1
+    assert grasp["median_error_mm"] is None and summary["reconstruction"]["mean_error_mm"] is None
+    consistency = summary["self_consistency"]
+    assert consistency["frames"] == grasp["produced"] and consistency["reprojection_mean_px"] < 2.0
+    assert summary["ordering"]["success_rate"] is None
+    assert summary["unscored"]["ordering: the bag has no true sequence"] == 3
+    assert any("no true 3D path" in note for note in summary["notes"])
+
+
+def test_sequences_without_a_visibility_flag_are_scored_from_the_true_masks(sim_bag, tmp_path):
+    flat = copy_bag(sim_bag, tmp_path / "flat", flatten_sequences=True)
+    frames = list(read_frames(flat, images=False, complete=False))
+    assert {frame.visibility for frame in frames} == {"mask"}
+    # the true order scores a success, the reverse order does not
+    board = Scoreboard()
+    for frame in frames:
+        truth = frame.true_left_sequence[:, :2]
+        board.add(frame, StageOutputs(sequences=(truth, frame.true_right_sequence[:, :2])))
+        board.add(frame, StageOutputs(sequences=(truth[::-1], frame.true_right_sequence[::-1, :2])))
+    assert [r["ordering_success"] for r in board.tally.per_frame] == [True, False] * 3
+    # the ordering stage scores on the flattened bag as on the simulator's own flags
+    flagged = evaluate([sim_bag], masks="ground_truth", sequences="predicted", use_images=False)
+    scored = evaluate([flat], masks="ground_truth", sequences="predicted", use_images=False)
+    assert scored["ordering"]["success_rate"] == flagged["ordering"]["success_rate"] > 0
+    assert any("visibility from the true masks" in note for note in scored["notes"])
+
+
+def test_the_report_of_a_cut_sample_bag_covers_the_frames_before_the_cut(tmp_path):
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    (cut / "metadata.yaml").write_text((SAMPLE / "metadata.yaml").read_text())
+    data = (SAMPLE / "sample.mcap").read_bytes()
+    (cut / "sample.mcap").write_bytes(data[: len(data) // 2])
+    report = tmp_path / "report"
+    summary = evaluate([cut], masks="ground_truth", sequences="predicted", report=report)
+    frames = summary["frames"]
+    assert 0 < frames < 10
+    (damaged,) = summary["damaged"]
+    assert damaged["lost"] == 10 - frames and "cut short" in damaged["error"]
+    assert any(f"{10 - frames} lost" in note for note in summary["notes"])
+    records = json.loads((report / "frames.json").read_text())
+    assert len(records) == frames == len(list((report / "frames").glob("*.json")))
+    assert all("grasp_produced" in record for record in records)
+    assert len(list((report / "overlays").glob("*.png"))) == frames
+    assert (report / "centreline_3d.png").stat().st_size > 10_000
+    written = json.loads((report / "summary.json").read_text())
+    assert written["frames"] == frames and "per_frame" not in written
+
+
+def test_a_bag_without_camera_info_says_why_it_has_no_frames(sim_bag, tmp_path):
+    bag = copy_bag(sim_bag, tmp_path / "no_info", drop={topics.LEFT_CAMERA_INFO, topics.RIGHT_CAMERA_INFO})
+    summary = evaluate([bag], masks="ground_truth", sequences="predicted")
+    assert summary["frames"] == 0
+    assert sum(summary["skipped"].values()) == 3
+    assert any("no stereo frame" in note and "camera_info" in note for note in summary["notes"])
+
+
+def test_a_bag_without_any_ground_truth_still_reports_grasps_and_consistency(sim_bag, tmp_path):
+    bag = copy_bag(sim_bag, tmp_path / "bare", drop={*topics.GROUND_TRUTH_TOPICS, topics.TIP_HINT})
+    summary = evaluate([bag], masks="predicted", sequences="predicted", seg_weights="m_ost")
+    assert summary["frames"] == 3
+    assert summary["segmentation"]["iou"] is None and summary["segmentation"]["cldice"] is None
+    assert summary["unscored"]["segmentation: the bag has no true masks"] == 3
+    grasp = summary["grasp"]
+    assert grasp["produced"] + sum(grasp["refused"].values()) == 3
+    assert summary["self_consistency"]["frames"] == grasp["produced"]
+    assert summary["latency_ms"]["segmentation"] > 0
