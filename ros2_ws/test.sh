@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The project's test command (README Quick start; CI runs exactly this).
 # Sets up the environment if needed, then: ruff lint and format check,
-# import-linter contracts (DESIGN.md one-way dependencies), and pytest.
+# import-linter contracts (docs/interfaces.md one-way dependencies), and pytest.
 # Extra arguments go to pytest, e.g. `bash ros2_ws/test.sh -k bag -x`.
 set -euo pipefail
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

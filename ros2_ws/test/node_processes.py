@@ -347,7 +347,7 @@ class Driver:
         self.states = self.watch(topics.EXECUTOR_STATE)
 
     def watch(self, topic: str) -> list[Received]:
-        """What arrives on ``topic`` (a DESIGN.md topic) from now on; the list fills as the test spins.
+        """What arrives on ``topic`` (see docs/interfaces.md) from now on; the list fills as the test spins.
 
         Images are subscribed best effort (their publishers are), everything else reliable.
         """
@@ -407,7 +407,7 @@ class Driver:
         return True
 
     def matched(self, topic: str) -> int:
-        """Subscriptions matched with this driver's publisher of ``topic`` (a DESIGN.md topic)."""
+        """Subscriptions matched with this driver's publisher of ``topic`` (a docs/interfaces.md topic)."""
         return self.publisher(topic, topics.TOPIC_TYPES[topic]).get_subscription_count()
 
     def wait_for_graph(self, expected: dict[str, int], timeout: float) -> bool:

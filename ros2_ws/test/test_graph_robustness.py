@@ -1,6 +1,6 @@
 """The running system under bad input and crashes: the four pipeline nodes as separate processes.
 
-DESIGN.md, "Bad input": a node never dies on a message; it drops a malformed input with a log
+docs/interfaces.md, "Bad input": a node never dies on a message; it drops a malformed input with a log
 line naming the problem and keeps serving the next frame. Here the nodes are the installed
 executables (segmentation_node, ordering_node, reconstruction_node, executor_node) with
 ``ros2_ws/params/pipeline.yaml``, each in its own process, and the test talks to them over the

@@ -1,4 +1,4 @@
-"""Grasp executor: grasp poses in the camera frame -> safe robot motion (DESIGN.md, issue 6).
+"""Grasp executor: grasp poses in the camera frame -> safe robot motion (docs/interfaces.md, "Robots").
 
 ROS-free core: ``geometry`` (Pose, quaternion <-> rotation vector), ``handeye``
 (T_base_camera), ``planning`` (grasp plan), ``keypoints`` (key-point mode),

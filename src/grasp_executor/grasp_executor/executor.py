@@ -1,6 +1,6 @@
 """The ROS-free executor: latest inputs, the state machine, and runs of plans through the safety gate.
 
-States (DESIGN.md, ``/grasp_executor/state``)::
+States (docs/interfaces.md, ``/grasp_executor/state``)::
 
     idle --grasp pose--> planned --execute--> executing --> done
                                      |                 \\--> fault: <reason>   (robot told to stop)

@@ -1,7 +1,7 @@
 """Offline evaluation over MCAP bags: the same core functions as the nodes, scored against ground truth.
 
 ``evaluate(paths, masks=..., sequences=...)`` walks every frame of the bags,
-runs the stages that the sources ask for, and returns the summary of DESIGN.md's
+runs the stages that the sources ask for, and returns the summary of docs/interfaces.md's
 evaluation contract (every key present; a value that could not be measured is
 None, with the reason in ``notes``):
 
@@ -17,7 +17,7 @@ None, with the reason in ``notes``):
   ordering_node uses them) gives the ordering stage the predicted low masks too; False orders
   the masks alone. True masks have none.
 
-Definitions (DESIGN.md): IoU, precision, recall and F1 pooled over the pixels of
+Definitions (docs/interfaces.md): IoU, precision, recall and F1 pooled over the pixels of
 all frames; ordering success per ``suture_bench.ordering_metrics``; reconstruction
 error is the distance from each reconstructed path point to the true 3D
 centreline (mean over frames of the per-frame mean, max over frames of the

@@ -1,4 +1,4 @@
-"""Ordering success (DESIGN.md, "Offline evaluation contract") as a pure function.
+"""Ordering success (docs/interfaces.md, "Offline evaluation contract") as a pure function.
 
 An ordering succeeds when the predicted sequence
 
@@ -106,7 +106,7 @@ def ordering_success(
     min_coverage: float = 0.9,
     max_segment_px: float = 10.0,
 ) -> OrderingScore:
-    """Score a predicted ordered sequence against the ground truth (DESIGN.md definition).
+    """Score a predicted ordered sequence against the ground truth (docs/interfaces.md definition).
 
     Parameters
     ----------

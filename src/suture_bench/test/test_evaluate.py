@@ -1,4 +1,4 @@
-"""suture-eval follows DESIGN.md's evaluation contract on the sample bag."""
+"""suture-eval follows docs/interfaces.md's evaluation contract on the sample bag."""
 
 from __future__ import annotations
 

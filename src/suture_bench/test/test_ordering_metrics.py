@@ -1,4 +1,4 @@
-"""ordering_success: the DESIGN.md ordering criterion on hand-made truths and predictions."""
+"""ordering_success: the docs/interfaces.md ordering criterion on hand-made truths and predictions."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ stays ROS-free. Messages built by :mod:`suture_common.messages` (rosbags
 dataclasses) are published as their CDR bytes (:func:`serialized`) or become rclpy
 messages through them (:func:`to_rclpy`), which is also how bag messages are replayed
 (:func:`from_cdr`). :class:`ThrottledWarnings`
-is the nodes' one way of reporting dropped input (DESIGN.md, "Bad input").
+is the nodes' one way of reporting dropped input (docs/interfaces.md, "Bad input").
 """
 
 from __future__ import annotations

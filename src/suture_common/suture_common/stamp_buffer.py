@@ -1,4 +1,4 @@
-"""Pairing of left and right inputs by exact ``header.stamp`` (DESIGN.md), without rclpy.
+"""Pairing of left and right inputs by exact ``header.stamp`` (docs/interfaces.md), without rclpy.
 
 The one stamp synchroniser of the project (what message_filters gives on a full install);
 every node that joins a stereo pair uses it.

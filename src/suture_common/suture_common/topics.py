@@ -1,4 +1,4 @@
-"""Default topic names and frame ids of DESIGN.md, in one place for nodes, simulator and evaluator."""
+"""Default topic names and frame ids (docs/interfaces.md), one place for nodes, simulator and evaluator."""
 
 LEFT_FRAME = "left_camera_optical_frame"
 RIGHT_FRAME = "right_camera_optical_frame"
@@ -11,8 +11,8 @@ TIP_HINT = "/suture/tip_hint"
 
 LEFT_MASK = "/suture/left/mask"
 RIGHT_MASK = "/suture/right/mask"
-#: The masks at segmentation_node's lower (hysteresis) threshold, for ordering_node (an addition
-#: to DESIGN.md's graph: see the README, "Low masks").
+#: The masks at segmentation_node's lower (hysteresis) threshold, for ordering_node
+#: (docs/interfaces.md, "Topics").
 LEFT_MASK_LOW = "/suture/left/mask_low"
 RIGHT_MASK_LOW = "/suture/right/mask_low"
 LEFT_SEQUENCE = "/suture/left/sequence"
@@ -43,7 +43,7 @@ GROUND_TRUTH_TOPICS = (
     GT_TOPOLOGY,
 )
 
-#: Outputs of grasp_executor (its node defines the same names; DESIGN.md, "Topics").
+#: Outputs of grasp_executor (its node defines the same names; docs/interfaces.md, "Topics").
 TARGET_POSE = "/grasp_executor/target_pose"
 EXECUTOR_STATE = "/grasp_executor/state"
 
@@ -63,7 +63,7 @@ PIPELINE_OUTPUT_TOPICS = (
     EXECUTOR_STATE,
 )
 
-#: Full message type name of every DESIGN.md topic (inputs, pipeline outputs, ground truth).
+#: Full message type name of every docs/interfaces.md topic (inputs, pipeline outputs, ground truth).
 TOPIC_TYPES: dict[str, str] = {
     LEFT_IMAGE: "sensor_msgs/msg/Image",
     RIGHT_IMAGE: "sensor_msgs/msg/Image",

@@ -322,7 +322,7 @@ class RecorderSettings:
         unknown = [topic for topic in topics if topic not in TOPIC_TYPES]
         if unknown:
             raise ValueError(
-                f"topic {unknown[0]} has no known type (the recorder records the DESIGN.md topics "
+                f"topic {unknown[0]} has no known type (the recorder records the docs/interfaces.md topics "
                 f"of suture_common.topics.TOPIC_TYPES only)"
             )
         object.__setattr__(self, "topics", tuple(dict.fromkeys(topics)))

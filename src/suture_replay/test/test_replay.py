@@ -250,7 +250,7 @@ def test_recorder_settings(tmp_path):
 
 
 def test_topic_tables():
-    """Every DESIGN.md topic has a type that the bag type store knows; the tuples agree with it."""
+    """Every docs/interfaces.md topic has a type that the bag type store knows; the tuples agree with it."""
     assert set(topics.INPUT_TOPICS) | set(topics.PIPELINE_OUTPUT_TOPICS) | set(
         topics.GROUND_TRUTH_TOPICS
     ) == set(topics.TOPIC_TYPES)

@@ -22,7 +22,7 @@ import torch
 from suture_segmentation.model import SutureUNet
 
 FORMAT = "suture-unet/1"
-#: The weights shipped with the package (see the README for the commands that made them); the
+#: The weights shipped with the package (docs/results.md gives the commands that made them); the
 #: ``_int8`` ones are ONNX models (``suture-seg export --int8``), for the onnx backend only.
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 SHIPPED = {

@@ -146,7 +146,7 @@ class Segmenter:
             model = onnx_bytes(torch_model)
         options = onnxruntime.SessionOptions()
         # Idle worker threads sleep instead of spinning: on a few cores, spinning ones take CPU
-        # from the other nodes and from the next run itself (README, "Node graph latency").
+        # from the other nodes and from the next run itself (docs/results.md, "Node graph latency").
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         if threads:
             options.intra_op_num_threads = threads

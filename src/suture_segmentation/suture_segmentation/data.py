@@ -186,7 +186,7 @@ def photometric_jitter(image: np.ndarray, rng: np.random.Generator) -> np.ndarra
     Channel gains 0.8-1.2 times an exposure of 0.7-1.3, contrast 0.7-1.3 about the mean, gamma
     0.7-1.4, a Gaussian blur of sigma 0.3-1.0 px on 30 % of the crops, Gaussian noise of sigma
     0-3 % of full scale. Trained on such variations, the feature extractor that transfer
-    learning freezes no longer keys on the training domain's colours (README, Table I).
+    learning freezes does not key on the training domain's colours (docs/results.md, Table I).
     Generic on purpose, not the simulator's ``sample_look``: the stages do not depend on the
     simulator, and drawing its on-site looks would show M-oST the target domain.
     """

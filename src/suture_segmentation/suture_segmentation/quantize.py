@@ -8,7 +8,7 @@ see. The model keeps the interface of :func:`~suture_segmentation.checkpoint.onn
 
 On a CPU with int8 dot-product instructions (AVX-512 VNNI, AVX-VNNI) the shipped M-oST runs
 about a fifth faster than in float32, and its masks agree with the float32 ones to an IoU of
-about 0.99 (README, "Segmentation speed"). Without those instructions the gain can vanish: measure
+about 0.99 (docs/results.md, "Segmentation speed"). Without those instructions the gain can vanish: measure
 with ``suture-seg bench --weights FILE.onnx --backends onnx``.
 """
 

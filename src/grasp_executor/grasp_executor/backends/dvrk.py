@@ -6,7 +6,7 @@ rclpy in :mod:`grasp_executor.crtk_ros` and by a fake in the tests. Under the
 arm namespace (default ``/PSM1``):
 
 * ``move_cp`` (geometry_msgs/PoseStamped): Cartesian goals, in the frame of
-  ``measured_cp`` (DESIGN.md, Robots);
+  ``measured_cp`` (docs/interfaces.md, Robots);
 * ``jaw/move_jp`` (sensor_msgs/JointState): one jaw position in radians;
 * ``measured_cp`` (geometry_msgs/PoseStamped): the measured tool pose; its
   stream is the connection's heartbeat: no message for ``measured_timeout``
