@@ -254,11 +254,14 @@ def _tube_fragments(
     p0, p1 = uv[:-1], uv[1:]
     reach = np.maximum(radius_px[:-1], radius_px[1:]) + 1.0
     low = np.floor(np.minimum(p0, p1) - reach[:, None]).astype(np.int64)
-    span = int(np.ceil((np.abs(p1 - p0) + 2 * reach[:, None]).max())) + 1
-    offsets = np.stack(np.meshgrid(np.arange(span), np.arange(span)), axis=-1).reshape(-1, 2)
-    cand = low[:, None, :] + offsets[None, :, :]  # (S, span^2, 2) integer pixels
-    seg = np.repeat(np.arange(len(p0)), offsets.shape[0])
-    cand = cand.reshape(-1, 2)
+    # Each segment tests its own bounding window, row by row: a wide instrument shaft
+    # costs its own area, not the largest window times the number of segments.
+    window = np.ceil(np.abs(p1 - p0) + 2 * reach[:, None]).astype(np.int64) + 1  # (S, 2) width, height
+    counts = window[:, 0] * window[:, 1]
+    seg = np.repeat(np.arange(len(p0)), counts)
+    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = window[seg, 0]
+    cand = low[seg] + np.column_stack([within % width, within // width])  # (sum(counts), 2) pixels
     inside = (
         (cand[:, 0] >= 0) & (cand[:, 0] < camera.width) & (cand[:, 1] >= 0) & (cand[:, 1] < camera.height)
     )
