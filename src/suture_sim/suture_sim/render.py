@@ -84,7 +84,12 @@ class Surface:
 
 @dataclass
 class Tube:
-    """A thread or an instrument part: axis (N, 3) metres, radius (m), material."""
+    """A thread or an instrument part: axis (N, 3) metres, radius (m), material.
+
+    ``segment_radii``: length of the rasterised segments in units of the tube's pixel
+    radius; a straight wide shaft needs no short segments, and longer ones test fewer
+    pixels outside it.
+    """
 
     axis: np.ndarray
     radius: float
@@ -93,6 +98,7 @@ class Tube:
     specular: float = 0.4
     braid: float = 0.0
     shininess: float = 0.3
+    segment_radii: float = 0.5
 
     @property
     def arc(self) -> np.ndarray:
@@ -241,7 +247,7 @@ def _tube_fragments(
     radius_px = tube.radius * camera.fx / z
     # Segments about max(2 px, radius) long keep every window small.
     step_px = np.linalg.norm(np.diff(uv, axis=0), axis=1)
-    target = max(2.0, 0.5 * float(np.median(radius_px)))
+    target = max(2.0, tube.segment_radii * float(np.median(radius_px)))
     keep = np.unique(
         np.concatenate(
             [

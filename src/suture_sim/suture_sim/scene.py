@@ -452,7 +452,8 @@ class _InstrumentKind:
     """Ranges an instrument is drawn from: where along the target (share of its samples),
     the angle between shaft and thread (deg), shaft radius (m), hover of the tip above the
     thread (m), how far past the thread the shaft's end lies (m, beyond its radius when
-    ``tip_past_edge``), the shaft's rise towards the camera (deg) and jaw length (m)."""
+    ``tip_past_edge``), the shaft's rise towards the camera (deg), jaw length (m) and the
+    shaft's rasterised segment length (``render.Tube.segment_radii``)."""
 
     where: tuple[float, float]
     angle_deg: tuple[float, float]
@@ -462,6 +463,7 @@ class _InstrumentKind:
     tip_past_edge: bool
     elevation_deg: tuple[float, float]
     jaw_length: tuple[float, float]
+    segment_radii: float = 0.5
 
 
 THIN_INSTRUMENT = _InstrumentKind(
@@ -484,6 +486,7 @@ WIDE_INSTRUMENT = _InstrumentKind(
     True,
     (5.0, 25.0),
     (0.008, 0.013),
+    segment_radii=2.0,
 )
 
 
@@ -511,7 +514,13 @@ def _instrument(
     grey = rng.uniform(0.25, 0.55)
     tubes = [
         Tube(
-            shaft, shaft_radius, np.array([grey, grey, grey * 1.05]), INSTRUMENT, specular=0.9, shininess=0.25
+            shaft,
+            shaft_radius,
+            np.array([grey, grey, grey * 1.05]),
+            INSTRUMENT,
+            specular=0.9,
+            shininess=0.25,
+            segment_radii=kind.segment_radii,
         )
     ]
     opening = np.radians(rng.uniform(5, 20))
