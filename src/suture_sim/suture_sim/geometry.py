@@ -5,7 +5,8 @@ integrating a smooth random curvature profile, so its length is exact and its
 shape is smooth. The curve is then lifted onto the tissue surface
 (``lift_onto_surface``) and, where two strands cross, the upper strand is raised
 so that the two threads touch instead of passing through each other
-(``raise_over_crossings``). Everything is numpy-vectorised and deterministic
+(``raise_over_crossings``). ``hooked_curve`` and ``along_rows_curve`` draw the
+shapes of the hard topologies. Everything is numpy-vectorised and deterministic
 under the ``np.random.Generator`` passed in.
 
 Units: metres everywhere; curvature in 1/m; angles in radians.

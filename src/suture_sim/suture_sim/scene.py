@@ -11,7 +11,8 @@ regenerated alone, in any order), renders both views and returns a
   of the left and right sequences lie on the same image row; consecutive
   samples are about 1 px apart in the left view. ``visible`` is 1.0 where the
   target itself is the front-most surface at that pixel, 0.0 where another
-  strand, its own upper strand or an instrument covers it;
+  strand, its own upper strand or an instrument covers it, or where it lies
+  under the tissue surface;
 * the 3D centreline from the cut tip (``path``, (M, 3) metres, every 0.5 mm, in
   the left camera optical frame; every 0.1 mm for the hard topologies, whose
   hooks bend at radii down to 0.3 mm) and its length;
@@ -34,7 +35,7 @@ frames that this simulator did not make:
   hook whose tip arm the thread crosses; bend radius 0.3 to 2 mm, the bend
   ending within 15 mm of the cut tip (``geometry.hooked_curve``);
 * ``wide_occlusion``: one or two instrument shafts 5 to 8.5 mm thick, with
-  jaws, lie across (or, in 30 % of frames, along) the target and hide 5 to
+  jaws, lie across (or, in about 30 % of draws, along) the target and hide 5 to
   25 mm of its arc in each view, with the thread visible on both sides of every
   hidden stretch; the grasp point may be hidden;
 * ``along_rows``: the target runs within 10 degrees of the image rows over at
@@ -176,8 +177,6 @@ class _Scene:
     tubes: list[Tube]
     target: np.ndarray  # (N, 3) dense centreline from the cut tip, SAMPLE_STEP apart
     radius: float
-    #: Arc (m) from which the target is buried in the tissue; None when its end stays above.
-    buried_from: float | None = None
 
 
 def generate_frame(config: SimConfig, index: int) -> SimFrame:
@@ -308,7 +307,6 @@ def _sample_hard_scene(
     base = surface.depth(curve[:, 0], curve[:, 1]) - radius
     lift = geometry.random_lift(n, rng) * lift_weight
     geometry.raise_over_crossings([lift], [base], [(0, 0, c) for c in crossings], [radius], rng)
-    buried_from = None
     depth = base - lift
     if length >= 0.060 + BURIED_END_MARGIN + 0.003 and rng.random() < 0.5:
         buried_from = length - rng.uniform(0.003, min(0.012, length - 0.060 - BURIED_END_MARGIN))
@@ -333,7 +331,7 @@ def _sample_hard_scene(
             across = rng.random() < 0.7
             kind = replace(WIDE_INSTRUMENT, angle_deg=(40.0, 90.0) if across else (10.0, 30.0))
             tubes += _instrument(target, camera, rng, kind)
-    return _Scene(surface, tubes, target, radius, buried_from)
+    return _Scene(surface, tubes, target, radius)
 
 
 def _surface(background: str, camera: StereoCamera, depth0: float, rng: np.random.Generator) -> Surface:
