@@ -1,10 +1,11 @@
 """``suture-sim-bench``: frames per second of the simulator.
 
-Prints two figures for the requested resolution: rendering alone, and the whole
-``suture-sim`` job (rendering, bag serialisation with zstd chunks, disk), both
-with the given number of worker processes. Example::
+Prints two figures for the requested resolution and topology (default ``mixed``):
+rendering alone, and the whole ``suture-sim`` job (rendering, bag serialisation
+with zstd chunks, disk), both with the given number of worker processes. Example::
 
     suture-sim-bench --frames 40 --resolution 640x480 --workers 2
+    suture-sim-bench --frames 30 --resolution 1280x1024 --topology hard
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from suture_common.camera import StereoCamera
 from suture_sim.cli import resolution
 from suture_sim.output import write_frame
 from suture_sim.parallel import generate_frames
-from suture_sim.scene import SimConfig
+from suture_sim.scene import TOPOLOGY_CHOICES, SimConfig
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -30,9 +31,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--resolution", type=resolution, default=(640, 480))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--domain", default="legacy", choices=("legacy", "on-site"))
+    parser.add_argument("--topology", default="mixed", choices=TOPOLOGY_CHOICES)
     args = parser.parse_args(argv)
     config = SimConfig(
-        topology="mixed", camera=StereoCamera.default(*args.resolution), domain=args.domain, seed=7
+        topology=args.topology, camera=StereoCamera.default(*args.resolution), domain=args.domain, seed=7
     )
     list(generate_frames(config, range(2), workers=1))  # warm caches and imports
 
@@ -50,7 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     width, height = args.resolution
     print(
-        f"suture-sim-bench: {width}x{height}, {args.domain}, mixed topologies, {args.frames} frames, "
+        f"suture-sim-bench: {width}x{height}, {args.domain}, {args.topology}, {args.frames} frames, "
         f"{args.workers} worker(s)"
     )
     print(f"  rendering only : {render_fps:6.1f} stereo frames/s")

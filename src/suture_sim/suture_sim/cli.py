@@ -1,10 +1,11 @@
 """``suture-sim``: write simulated stereo suture frames with ground truth to an MCAP bag
 and/or PNG training folders.
 
-Example::
+Examples::
 
     suture-sim --topology mixed --frames 50 --domain legacy --resolution 640x480 \\
         --seed 1 --out bags/train_legacy
+    suture-sim --topology hard --frames 30 --resolution 1280x1024 --seed 1 --out bags/hard
 
 Exit status 0 on success; otherwise 1 with one line on standard error naming the
 problem (argument errors exit 2, as argparse does).
@@ -21,7 +22,7 @@ from suture_common.bag_io import BagError, BagWriter
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_sim.output import export_png, write_frame
 from suture_sim.parallel import generate_frames
-from suture_sim.scene import BACKGROUNDS, DOMAINS, TOPOLOGIES, SceneError, SimConfig, SimFrame
+from suture_sim.scene import BACKGROUNDS, DOMAINS, TOPOLOGY_CHOICES, SceneError, SimConfig, SimFrame
 
 
 class _Parser(argparse.ArgumentParser):
@@ -58,8 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--topology",
         required=True,
-        choices=(*TOPOLOGIES, "mixed"),
-        help="thread topology; 'mixed' cycles through the five",
+        choices=TOPOLOGY_CHOICES,
+        help="thread topology; 'mixed' cycles through the paper's five (straight to occluded), "
+        "'hard' through hooked, wide_occlusion and along_rows",
     )
     parser.add_argument(
         "--frames", type=_positive(int), default=10, help="number of stereo frames (default 10)"

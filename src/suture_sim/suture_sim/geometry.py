@@ -5,7 +5,8 @@ integrating a smooth random curvature profile, so its length is exact and its
 shape is smooth. The curve is then lifted onto the tissue surface
 (``lift_onto_surface``) and, where two strands cross, the upper strand is raised
 so that the two threads touch instead of passing through each other
-(``raise_over_crossings``). Everything is numpy-vectorised and deterministic
+(``raise_over_crossings``). ``hooked_curve`` and ``along_rows_curve`` draw the
+shapes of the hard topologies. Everything is numpy-vectorised and deterministic
 under the ``np.random.Generator`` passed in.
 
 Units: metres everywhere; curvature in 1/m; angles in radians.
@@ -251,3 +252,108 @@ def resample_by_arc_length(points: np.ndarray, step: float = SAMPLE_STEP) -> np.
 def arc_length(points: np.ndarray) -> float:
     """Length (m) of an (N, D) polyline."""
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+@dataclass(frozen=True)
+class Hook:
+    """The curled cut end of a ``hooked`` thread; arc lengths (m) from the cut tip.
+
+    ``bend_radius`` is the tightest radius of the bend; the bend ends at ``bend_end``;
+    beyond ``free_from`` the thread no longer runs alongside its own tip arm.
+    ``crossing`` tells a hook whose tip arm is crossed by the thread from a hairpin
+    whose arms lie side by side.
+    """
+
+    bend_radius: float
+    bend_end: float
+    free_from: float
+    crossing: bool
+
+
+#: Where a hook may curl: its bend ends within this arc (m) of the cut tip.
+HOOK_REACH = 0.015
+
+
+def hooked_curve(length: float, thread_radius: float, rng: np.random.Generator) -> tuple[np.ndarray, Hook]:
+    """(N, 2) planar curve from the cut tip, sampled every ``SAMPLE_STEP``, whose cut end
+    curls into a hook or hairpin ending within ``HOOK_REACH`` of the tip.
+
+    A straight tip arm leads into a bend of radius 0.3 to 2 mm. A hairpin (60 %) turns
+    by pi plus twice a small outward counter-bend, so that its second arm returns
+    alongside the tip arm with a gap between the two threads' surfaces of 0 to one
+    thread diameter (``thread_radius`` is the thread's radius, m). A crossing hook
+    turns by pi + 25..70 degrees so that the thread crosses its tip arm 1 to 5 mm from
+    the tip. Beyond the hook the thread bends gently (60 to 270 degrees in all).
+    """
+    for _ in range(100):
+        bend_radius = rng.uniform(3e-4, 2e-3)
+        if rng.random() < 0.6:
+            arm = rng.uniform(0.001, 0.008)
+            centre_gap = 2 * thread_radius + rng.uniform(0.0, 2 * thread_radius)
+            counter_radius = bend_radius * rng.uniform(1.0, 3.0)
+            # Half-width of the arms at the neck: r cos(a) - R (1 - cos(a)) = centre_gap / 2.
+            cos_alpha = min(1.0, (centre_gap / 2 + counter_radius) / (bend_radius + counter_radius))
+            alpha = float(np.arccos(cos_alpha))
+            pieces = [
+                (arm, 0.0),
+                (counter_radius * alpha, -1.0 / counter_radius),
+                ((np.pi + 2 * alpha) * bend_radius, 1.0 / bend_radius),
+                (counter_radius * alpha, -1.0 / counter_radius),
+            ]
+            bend_end = sum(p[0] for p in pieces)
+            free_from = bend_end + arm + 0.003
+            crossing = False
+        else:
+            beta = np.radians(rng.uniform(25, 70))
+            # Straight from the end of the bend to the tip arm's line, then across it.
+            to_line = bend_radius * (1 + np.cos(beta)) / np.sin(beta)
+            arm = rng.uniform(0.001, 0.005) + bend_radius * np.sin(beta) + np.cos(beta) * to_line
+            pieces = [(arm, 0.0), ((np.pi + beta) * bend_radius, 1.0 / bend_radius)]
+            bend_end = arm + (np.pi + beta) * bend_radius
+            free_from = bend_end + to_line + 0.003
+            crossing = True
+        if bend_end <= HOOK_REACH and free_from < length - 0.02:
+            break
+    else:
+        raise ShapeError("no hook fits the thread")
+    # Integrate on a 10x finer grid: a 0.3 mm bend turns by pi within 1 mm.
+    fine = SAMPLE_STEP / 10
+    n = round(length / fine) + 1
+    s = np.linspace(0.0, length, n)
+    kappa = np.zeros(n)
+    start = 0.0
+    for piece_length, curvature in pieces:
+        kappa[(s >= start) & (s < start + piece_length)] = curvature
+        start += piece_length
+    rest = smooth_noise(n, 0.02 / fine, rng) + rng.uniform(-0.6, 0.6)
+    ramp = np.clip((s - free_from) / 0.005, 0.0, 1.0)
+    rest *= ramp * np.radians(rng.uniform(60, 270)) / (np.abs(rest * ramp).mean() * length + 1e-12)
+    side = rng.choice([-1.0, 1.0])
+    curve = resample_by_arc_length(planar_curve(length, side * (kappa + rest)))
+    return curve, Hook(float(bend_radius), float(bend_end), float(free_from), crossing)
+
+
+def along_rows_curve(
+    length: float, stretch_start: float, stretch_length: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(N, 2) planar curve sampled every ``SAMPLE_STEP`` that runs straight along the x axis
+    (within +-6 degrees, either way) from arc ``stretch_start`` for ``stretch_length``
+    metres and bends gently elsewhere."""
+    kappa = curvature_profile("curved", length, rng)
+    s = np.arange(kappa.size) * SAMPLE_STEP
+    edge = 0.003  # the bends fade out over 3 mm at each end of the stretch
+    outside = np.maximum(stretch_start - s, s - stretch_start - stretch_length)
+    kappa *= np.clip(outside / edge, 0.0, 1.0)
+    curve = planar_curve(length, kappa)
+    first = round(stretch_start / SAMPLE_STEP)
+    last = min(round((stretch_start + stretch_length) / SAMPLE_STEP), len(curve) - 1)
+    chord = curve[last] - curve[first]
+    heading = np.radians(rng.uniform(-6, 6)) + rng.choice([0.0, np.pi])
+    return rotate(curve, heading - np.arctan2(chord[1], chord[0]))
+
+
+def taper(length_samples: int, start: float, stop: float) -> np.ndarray:
+    """(N,) weights along a curve sampled every ``SAMPLE_STEP``: 1 before arc ``start``, 0
+    from arc ``stop`` on, linear between (with ``stop < start`` it rises instead)."""
+    s = np.arange(length_samples) * SAMPLE_STEP
+    return np.clip((stop - s) / (stop - start), 0.0, 1.0)

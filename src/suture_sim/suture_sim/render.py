@@ -84,7 +84,12 @@ class Surface:
 
 @dataclass
 class Tube:
-    """A thread or an instrument part: axis (N, 3) metres, radius (m), material."""
+    """A thread or an instrument part: axis (N, 3) metres, radius (m), material.
+
+    ``segment_radii``: length of the rasterised segments in units of the tube's pixel
+    radius; a straight wide shaft needs no short segments, and longer ones test fewer
+    pixels outside it.
+    """
 
     axis: np.ndarray
     radius: float
@@ -93,6 +98,7 @@ class Tube:
     specular: float = 0.4
     braid: float = 0.0
     shininess: float = 0.3
+    segment_radii: float = 0.5
 
     @property
     def arc(self) -> np.ndarray:
@@ -241,7 +247,7 @@ def _tube_fragments(
     radius_px = tube.radius * camera.fx / z
     # Segments about max(2 px, radius) long keep every window small.
     step_px = np.linalg.norm(np.diff(uv, axis=0), axis=1)
-    target = max(2.0, 0.5 * float(np.median(radius_px)))
+    target = max(2.0, tube.segment_radii * float(np.median(radius_px)))
     keep = np.unique(
         np.concatenate(
             [
@@ -254,11 +260,14 @@ def _tube_fragments(
     p0, p1 = uv[:-1], uv[1:]
     reach = np.maximum(radius_px[:-1], radius_px[1:]) + 1.0
     low = np.floor(np.minimum(p0, p1) - reach[:, None]).astype(np.int64)
-    span = int(np.ceil((np.abs(p1 - p0) + 2 * reach[:, None]).max())) + 1
-    offsets = np.stack(np.meshgrid(np.arange(span), np.arange(span)), axis=-1).reshape(-1, 2)
-    cand = low[:, None, :] + offsets[None, :, :]  # (S, span^2, 2) integer pixels
-    seg = np.repeat(np.arange(len(p0)), offsets.shape[0])
-    cand = cand.reshape(-1, 2)
+    # Each segment tests its own bounding window, row by row: a wide instrument shaft
+    # costs its own area, not the largest window times the number of segments.
+    window = np.ceil(np.abs(p1 - p0) + 2 * reach[:, None]).astype(np.int64) + 1  # (S, 2) width, height
+    counts = window[:, 0] * window[:, 1]
+    seg = np.repeat(np.arange(len(p0)), counts)
+    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    width = window[seg, 0]
+    cand = low[seg] + np.column_stack([within % width, within // width])  # (sum(counts), 2) pixels
     inside = (
         (cand[:, 0] >= 0) & (cand[:, 0] < camera.width) & (cand[:, 1] >= 0) & (cand[:, 1] < camera.height)
     )

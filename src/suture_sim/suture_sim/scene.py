@@ -11,20 +11,46 @@ regenerated alone, in any order), renders both views and returns a
   of the left and right sequences lie on the same image row; consecutive
   samples are about 1 px apart in the left view. ``visible`` is 1.0 where the
   target itself is the front-most surface at that pixel, 0.0 where another
-  strand, its own upper strand or an instrument covers it;
+  strand, its own upper strand or an instrument covers it, or where it lies
+  under the tissue surface;
 * the 3D centreline from the cut tip (``path``, (M, 3) metres, every 0.5 mm, in
-  the left camera optical frame) and its length;
+  the left camera optical frame; every 0.1 mm for the hard topologies, whose
+  hooks bend at radii down to 0.3 mm) and its length;
 * the grasp pose at ``config.grasp_arc_length`` (0.05 m) of arc from the tip,
   oriented by ``suture_common.grasp`` (x along the thread, z the approach).
+  The arc is measured along the target's true centreline, through stretches
+  that something hides; a thread end that enters the tissue does so at least
+  10 mm of arc beyond the grasp point, so the grasp point is never buried (an
+  instrument may still hide it).
 
-Physical ranges (DESIGN and the paper's simulation): thread diameter 0.2 to
-0.6 mm, length 60 to 150 mm, lying on or draped above a tissue surface so that
-every target point is 50 to 150 mm from the camera.
+Physical ranges (docs/interfaces.md and the paper's simulation): thread diameter
+0.2 to 0.6 mm, length 60 to 150 mm, lying on or draped above a tissue surface so
+that every target point is 50 to 150 mm from the camera.
+
+Topologies: the paper's five (``TOPOLOGIES``, cycled by ``mixed``) and three
+hard ones (``HARD_TOPOLOGIES``, cycled by ``hard``) taken from the failures on
+frames that this simulator did not make:
+
+* ``hooked``: the cut end curls into a hairpin whose arms lie side by side, or a
+  hook whose tip arm the thread crosses; bend radius 0.3 to 2 mm, the bend
+  ending within 15 mm of the cut tip (``geometry.hooked_curve``);
+* ``wide_occlusion``: one or two instrument shafts 5 to 8.5 mm thick, with
+  jaws, lie across (or, in about 30 % of draws, along) the target and hide 5 to
+  25 mm of its arc in each view, with the thread visible on both sides of every
+  hidden stretch; the grasp point may be hidden;
+* ``along_rows``: the target runs within 10 degrees of the image rows over at
+  least 30 mm of arc, where stereo depth is ill-conditioned.
+
+The hard topologies draw thread diameters from 0.1 to 0.6 mm (log-uniform), and
+in half of their frames the target's far end enters the tissue: the buried part
+stays in the sequences and the path, marked hidden like any covered point, and
+is in neither mask. Frames of the five paper topologies are unchanged by them:
+each topology draws from its own random stream.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,6 +60,11 @@ from suture_sim import appearance, geometry, textures
 from suture_sim.render import INSTRUMENT, Lighting, Surface, Tube, ViewRender, render_view
 
 TOPOLOGIES = ("straight", "curved", "self_intersected", "crossed", "occluded")
+HARD_TOPOLOGIES = ("hooked", "wide_occlusion", "along_rows")
+#: Names that draw a different topology frame by frame, cycling through the listed ones.
+MIXTURES = {"mixed": TOPOLOGIES, "hard": HARD_TOPOLOGIES}
+#: Every value ``SimConfig.topology`` accepts.
+TOPOLOGY_CHOICES = (*TOPOLOGIES, *HARD_TOPOLOGIES, *MIXTURES)
 DOMAINS = ("legacy", "on-site")
 BACKGROUNDS = ("tissue", "phantom", "printed")
 
@@ -60,6 +91,14 @@ PATH_STEP = 5e-4
 #: An instrument crosses the thread: a shaft of at most 6 mm crossing at 40 degrees or more
 #: hides at most ~9.3 mm of it. Scenes where it lies along the thread are redrawn.
 MAX_HIDDEN_ARC = 0.010
+#: Hard topologies: thinnest thread diameter (m).
+THIN_DIAMETER = 0.0001
+#: wide_occlusion: arc of the target (m) that the shafts hide in each view.
+MIN_SHAFT_HIDDEN, MAX_SHAFT_HIDDEN = 0.005, 0.025
+#: along_rows: the target stays within ROW_ANGLE degrees of the image rows over ROW_STRETCH m.
+ROW_ANGLE, ROW_STRETCH = 10.0, 0.030
+#: A thread end that enters the tissue does so this far (m of arc) beyond the grasp point.
+BURIED_END_MARGIN = 0.010
 
 
 class SceneError(RuntimeError):
@@ -81,9 +120,9 @@ class SimConfig:
     start_ns: int = 1_700_000_000_000_000_000
 
     def __post_init__(self) -> None:
-        if self.topology not in (*TOPOLOGIES, "mixed"):
+        if self.topology not in TOPOLOGY_CHOICES:
             raise ValueError(
-                f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGIES)}, mixed"
+                f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGY_CHOICES)}"
             )
         if self.domain not in DOMAINS:
             raise ValueError(f"unknown domain {self.domain!r}; choose legacy or on-site")
@@ -95,7 +134,8 @@ class SimConfig:
             raise ValueError(f"grasp arc length must be in (0, {MIN_LENGTH}) m, got {self.grasp_arc_length}")
 
     def topology_of(self, index: int) -> str:
-        return TOPOLOGIES[index % len(TOPOLOGIES)] if self.topology == "mixed" else self.topology
+        cycle = MIXTURES.get(self.topology)
+        return cycle[index % len(cycle)] if cycle is not None else self.topology
 
     def background_of(self, index: int) -> str:
         if self.background is not None:
@@ -142,7 +182,7 @@ class _Scene:
 def generate_frame(config: SimConfig, index: int) -> SimFrame:
     """Draw, render and annotate frame ``index`` of ``config`` (deterministic)."""
     topology = config.topology_of(index)
-    rng = np.random.default_rng([config.seed, index, TOPOLOGIES.index(topology)])
+    rng = np.random.default_rng([config.seed, index, (*TOPOLOGIES, *HARD_TOPOLOGIES).index(topology)])
     background = config.background_of(index)
     camera = config.camera
     for _ in range(60):
@@ -166,6 +206,8 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
 
 
 def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.random.Generator) -> _Scene:
+    if topology in HARD_TOPOLOGIES:
+        return _sample_hard_scene(topology, background, camera, rng)
     radius = rng.uniform(MIN_DIAMETER, MAX_DIAMETER) / 2
     length = rng.uniform(MIN_LENGTH, MAX_LENGTH)
     shape = {"self_intersected": "loop", "straight": "straight"}.get(
@@ -195,17 +237,7 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
         radii.append(rng.uniform(MIN_DIAMETER, MAX_DIAMETER) / 2)
         crossings += [(0, 1, c) for c in other_crossings]
 
-    # The texture patch covers the field of view at the surface's depth with some margin
-    # for its slope; beyond it the texture mirrors. Texels stay ~2 px or finer.
-    extent = 2.0 * max(camera.width / camera.fx, camera.height / camera.fy) * depth0
-    size = 512 if camera.width <= 800 else 1024
-    texture = textures.make_surface_texture(background, size, extent, rng)
-    surface = Surface(
-        depth0=depth0,
-        slope=rng.uniform(-0.15, 0.15, size=2),
-        texture=texture,
-        origin=np.array([camera.baseline / 2 - extent / 2, -extent / 2]),
-    )
+    surface = _surface(background, camera, depth0, rng)
     base = [surface.depth(c[:, 0], c[:, 1]) - r for c, r in zip(planar, radii, strict=True)]
     lifts = [geometry.random_lift(len(c), rng) for c in planar]
     geometry.raise_over_crossings(lifts, base, crossings, radii, rng)
@@ -219,10 +251,112 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
     if not _inside(camera, target, BORDER_PX):
         raise geometry.ShapeError("target leaves a view")
 
-    colours = rng.choice(contrasting_colours(texture.albedo), size=len(threads))
-    tubes = [
+    tubes = _thread_tubes([target, *threads[1:]], radii, surface, rng)
+    if topology == "occluded":
+        tubes += _instrument(target, camera, rng, THIN_INSTRUMENT)
+    return _Scene(surface, tubes, target, radius)
+
+
+def _sample_hard_scene(
+    topology: str, background: str, camera: StereoCamera, rng: np.random.Generator
+) -> _Scene:
+    """A scene of one of ``HARD_TOPOLOGIES`` (see the module docstring)."""
+    radius = np.exp(rng.uniform(np.log(THIN_DIAMETER), np.log(MAX_DIAMETER))) / 2
+    length = rng.uniform(MIN_LENGTH, MAX_LENGTH)
+    hook = None
+    if topology == "hooked":
+        curve, hook = geometry.hooked_curve(length, radius, rng)
+        n = len(curve)
+        # Both arms of the hook rest on the tissue, so they touch in the image as on it.
+        lift_weight = 1.0 - geometry.taper(n, hook.free_from + 0.005, hook.free_from + 0.010)
+    elif topology == "along_rows":
+        stretch = rng.uniform(ROW_STRETCH + 0.002, min(0.060, length - 0.005))
+        start = rng.uniform(0.0, length - stretch)
+        curve = geometry.along_rows_curve(length, start, stretch, rng)
+        n = len(curve)
+        # The straight stretch rests on the tissue: a drape would tilt it in the image.
+        lift_weight = np.maximum(
+            geometry.taper(n, start - 0.008, start - 0.003),
+            1.0 - geometry.taper(n, start + stretch + 0.003, start + stretch + 0.008),
+        )
+    else:
+        shape = rng.choice(["curved", "curved", "straight"])
+        curve = geometry.planar_curve(length, geometry.curvature_profile(shape, length, rng))
+        n = len(curve)
+        lift_weight = np.ones(n)
+    if topology != "along_rows":
+        curve = geometry.rotate(curve, rng.uniform(0, 2 * np.pi))
+    crossings = geometry.find_crossings(curve)
+    if len(crossings) != (1 if hook is not None and hook.crossing else 0):
+        raise geometry.ShapeError("only a crossing hook may cross itself, and only once")
+    if crossings and (
+        crossings[0].s_first > hook.bend_end
+        or crossings[0].angle < np.radians(20)
+        or crossings[0].s_first < 8e-4
+    ):
+        raise geometry.ShapeError("the hook must cross its tip arm clearly, away from the cut tip")
+    free = 0 if hook is None else round(hook.free_from / geometry.SAMPLE_STEP)
+    if geometry.has_close_approach(curve[free:], None, [], 0.0015) or (
+        free and geometry.has_close_approach(curve[free:], curve[: free - 60], [], 0.0015)
+    ):
+        raise geometry.ShapeError("thread touches itself away from the hook")
+
+    depth0, centre = _place(curve, camera, rng)
+    curve = curve - curve.mean(axis=0) + centre
+    surface = _surface(background, camera, depth0, rng)
+    base = surface.depth(curve[:, 0], curve[:, 1]) - radius
+    lift = geometry.random_lift(n, rng) * lift_weight
+    geometry.raise_over_crossings([lift], [base], [(0, 0, c) for c in crossings], [radius], rng)
+    depth = base - lift
+    if length >= 0.060 + BURIED_END_MARGIN + 0.003 and rng.random() < 0.5:
+        buried_from = length - rng.uniform(0.003, min(0.012, length - 0.060 - BURIED_END_MARGIN))
+        # The thread rests on the tissue before it dives in at 20 to 60 degrees.
+        rests = geometry.taper(n, buried_from - 0.008, buried_from - 0.003)
+        s = np.arange(n) * geometry.SAMPLE_STEP
+        dive = np.tan(np.radians(rng.uniform(20, 60))) * np.maximum(s - buried_from, 0.0)
+        depth = base - lift * rests + dive
+    target = geometry.resample_by_arc_length(np.column_stack([curve, depth]))
+    if geometry.arc_length(target) > MAX_LENGTH:
+        target = target[: int(MAX_LENGTH / geometry.SAMPLE_STEP) + 1]
+    if not (target[:, 2].min() >= MIN_DEPTH and target[:, 2].max() <= MAX_DEPTH):
+        raise geometry.ShapeError("thread leaves the 50-150 mm depth range")
+    if not _inside(camera, target, BORDER_PX):
+        raise geometry.ShapeError("target leaves a view")
+    if topology == "along_rows" and _row_aligned_arc(camera, target) < ROW_STRETCH:
+        raise geometry.ShapeError("the target's straight stretch is not along the image rows")
+
+    tubes = _thread_tubes([target], [radius], surface, rng)
+    if topology == "wide_occlusion":
+        for _ in range(rng.choice([1, 1, 2])):
+            across = rng.random() < 0.7
+            kind = replace(WIDE_INSTRUMENT, angle_deg=(40.0, 90.0) if across else (10.0, 30.0))
+            tubes += _instrument(target, camera, rng, kind)
+    return _Scene(surface, tubes, target, radius)
+
+
+def _surface(background: str, camera: StereoCamera, depth0: float, rng: np.random.Generator) -> Surface:
+    """A tissue surface of ``background`` at ``depth0`` (m) with a random slope."""
+    # The texture patch covers the field of view at the surface's depth with some margin
+    # for its slope; beyond it the texture mirrors. Texels stay ~2 px or finer.
+    extent = 2.0 * max(camera.width / camera.fx, camera.height / camera.fy) * depth0
+    size = 512 if camera.width <= 800 else 1024
+    texture = textures.make_surface_texture(background, size, extent, rng)
+    return Surface(
+        depth0=depth0,
+        slope=rng.uniform(-0.15, 0.15, size=2),
+        texture=texture,
+        origin=np.array([camera.baseline / 2 - extent / 2, -extent / 2]),
+    )
+
+
+def _thread_tubes(
+    axes: list[np.ndarray], radii: list[float], surface: Surface, rng: np.random.Generator
+) -> list[Tube]:
+    """One tube per thread (the target first), in colours that contrast with the surface."""
+    colours = rng.choice(contrasting_colours(surface.texture.albedo), size=len(axes))
+    return [
         Tube(
-            axis=target if k == 0 else thread,
+            axis=axis,
             radius=radii[k],
             colour=np.array(THREAD_COLOURS[colours[k]]) * rng.uniform(0.8, 1.2),
             owner=k,
@@ -230,11 +364,21 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
             braid=rng.choice([0.0, rng.uniform(0.05, 0.25)]),
             shininess=rng.uniform(0.2, 0.45),
         )
-        for k, thread in enumerate(threads)
+        for k, axis in enumerate(axes)
     ]
-    if topology == "occluded":
-        tubes += _instrument(target, camera, rng)
-    return _Scene(surface, tubes, target, radius)
+
+
+def _row_aligned_arc(camera: StereoCamera, target: np.ndarray) -> float:
+    """Longest arc (m) of the (N, 3) target, sampled every SAMPLE_STEP, whose direction in
+    the left image (over 2 mm chords) stays within ``ROW_ANGLE`` degrees of the rows."""
+    uv = camera.project(target, "left")
+    half = round(0.001 / geometry.SAMPLE_STEP)
+    chord = uv[2 * half :] - uv[: -2 * half]
+    along = np.degrees(np.arctan2(np.abs(chord[:, 1]), np.abs(chord[:, 0]))) <= ROW_ANGLE
+    # Longest run of aligned chords, counted in samples.
+    run_id = np.cumsum(~along)
+    longest = np.bincount(run_id[along]).max() if along.any() else 0
+    return float(longest * geometry.SAMPLE_STEP)
 
 
 def contrasting_colours(albedo: np.ndarray) -> list[str]:
@@ -301,32 +445,84 @@ def _crossing_thread(
     return other, crossings
 
 
-def _instrument(target: np.ndarray, camera: StereoCamera, rng: np.random.Generator) -> list[Tube]:
+@dataclass(frozen=True)
+class _InstrumentKind:
+    """Ranges an instrument is drawn from: where along the target (share of its samples),
+    the angle between shaft and thread (deg), shaft radius (m), hover of the tip above the
+    thread (m), how far past the thread the shaft's end lies (m, beyond its radius when
+    ``tip_past_edge``), the shaft's rise towards the camera (deg), jaw length (m) and the
+    shaft's rasterised segment length (``render.Tube.segment_radii``)."""
+
+    where: tuple[float, float]
+    angle_deg: tuple[float, float]
+    radius: tuple[float, float]
+    hover: tuple[float, float]
+    tip_past: tuple[float, float]
+    tip_past_edge: bool
+    elevation_deg: tuple[float, float]
+    jaw_length: tuple[float, float]
+    segment_radii: float = 0.5
+
+
+THIN_INSTRUMENT = _InstrumentKind(
+    (0.3, 0.8),
+    (40.0, 90.0),
+    (0.0015, 0.003),
+    (0.004, 0.012),
+    (0.003, 0.008),
+    False,
+    (10.0, 35.0),
+    (0.005, 0.008),
+)
+#: da Vinci and dVRK shafts: 5 to 8.5 mm thick, jaws about 1 cm long.
+WIDE_INSTRUMENT = _InstrumentKind(
+    (0.15, 0.85),
+    (40.0, 90.0),
+    (0.0025, 0.00425),
+    (0.002, 0.010),
+    (0.001, 0.008),
+    True,
+    (5.0, 25.0),
+    (0.008, 0.013),
+    segment_radii=2.0,
+)
+
+
+def _instrument(
+    target: np.ndarray, camera: StereoCamera, rng: np.random.Generator, kind: _InstrumentKind
+) -> list[Tube]:
     """A grey instrument shaft with two jaws whose tip lies just past the target, hiding a
-    stretch of it between 30 % and 80 % of its length."""
-    i = int(rng.uniform(0.3, 0.8) * len(target))
+    stretch of it in ``kind.where`` of its length."""
+    i = int(rng.uniform(*kind.where) * len(target))
     tangent = target[min(i + 5, len(target) - 1), :2] - target[max(i - 5, 0), :2]
     tangent /= np.linalg.norm(tangent)
-    angle = np.radians(rng.uniform(40, 90)) * rng.choice([-1, 1])
+    angle = np.radians(rng.uniform(*kind.angle_deg)) * rng.choice([-1, 1])
     direction = geometry.rotate(tangent[None, :], angle)[0]
-    shaft_radius = rng.uniform(0.0015, 0.003)
+    shaft_radius = rng.uniform(*kind.radius)
     # The shaft passes over the target point on the left camera's ray through it, so it
     # hides the thread in the left view and, a few pixels of disparity away, in the right.
-    tip_depth = target[i, 2] - rng.uniform(0.004, 0.012) - shaft_radius
+    tip_depth = target[i, 2] - rng.uniform(*kind.hover) - shaft_radius
     over = target[i, :2] * tip_depth / target[i, 2]
-    tip = np.r_[over + direction * rng.uniform(0.003, 0.008), tip_depth]
-    elevation = np.tan(np.radians(rng.uniform(10, 35)))
+    past = rng.uniform(*kind.tip_past) + (shaft_radius if kind.tip_past_edge else 0.0)
+    tip = np.r_[over + direction * past, tip_depth]
+    elevation = np.tan(np.radians(rng.uniform(*kind.elevation_deg)))
     t = np.linspace(0.0, 0.2, 200)
     shaft = np.column_stack([tip[:2] - t[:, None] * direction, tip_depth - elevation * t])
     shaft = shaft[: _frames_until_outside(camera, shaft, shaft_radius)]
     grey = rng.uniform(0.25, 0.55)
     tubes = [
         Tube(
-            shaft, shaft_radius, np.array([grey, grey, grey * 1.05]), INSTRUMENT, specular=0.9, shininess=0.25
+            shaft,
+            shaft_radius,
+            np.array([grey, grey, grey * 1.05]),
+            INSTRUMENT,
+            specular=0.9,
+            shininess=0.25,
+            segment_radii=kind.segment_radii,
         )
     ]
     opening = np.radians(rng.uniform(5, 20))
-    jaw_length = rng.uniform(0.005, 0.008)
+    jaw_length = rng.uniform(*kind.jaw_length)
     for sign in (-1, 1):
         jaw_dir = geometry.rotate(direction[None, :], sign * opening)[0]
         s = np.linspace(0.0, jaw_length, 20)
@@ -375,6 +571,23 @@ def _longest_hidden_arc(samples: np.ndarray, *visible: np.ndarray) -> float:
     return longest
 
 
+def _shafts_hide_a_stretch(
+    camera: StereoCamera, view: str, render: ViewRender, samples: np.ndarray, visible: np.ndarray
+) -> bool:
+    """True when instruments hide ``MIN_SHAFT_HIDDEN`` to ``MAX_SHAFT_HIDDEN`` of arc of the
+    target's (N, 3) ``samples`` in ``view``, and every hidden stretch that they cover has
+    visible thread on both sides."""
+    uv = np.rint(camera.project(samples, view)).astype(int)
+    by_instrument = (visible == 0) & (render.owner[uv[:, 1], uv[:, 0]] == INSTRUMENT)
+    steps = np.r_[0.0, np.linalg.norm(np.diff(samples, axis=0), axis=1)]
+    if not MIN_SHAFT_HIDDEN <= steps[by_instrument].sum() <= MAX_SHAFT_HIDDEN:
+        return False
+    hidden = visible == 0
+    run_id = np.cumsum(np.r_[True, hidden[1:] != hidden[:-1]])  # one id per run of equal flags
+    covered_runs = np.unique(run_id[by_instrument])
+    return not np.isin(covered_runs, (run_id[0], run_id[-1])).any()
+
+
 def _visible(
     camera: StereoCamera, view: str, render: ViewRender, points: np.ndarray, radius: float
 ) -> np.ndarray:
@@ -412,7 +625,12 @@ def _annotate(
         visible_left.all() or _longest_hidden_arc(samples, visible_left, visible_right) > MAX_HIDDEN_ARC
     ):
         return None  # the instrument missed the target, or lies along it instead of across
-    path = target[:: round(PATH_STEP / geometry.SAMPLE_STEP)]
+    if topology == "wide_occlusion" and not all(
+        _shafts_hide_a_stretch(camera, view, render, samples, flags)
+        for view, render, flags in (("left", left, visible_left), ("right", right, visible_right))
+    ):
+        return None
+    path = target[:: 1 if topology in HARD_TOPOLOGIES else round(PATH_STEP / geometry.SAMPLE_STEP)]
     if not np.allclose(path[-1], target[-1]):
         path = np.vstack([path, target[-1]])
     position, tangent = point_at_arc_length(target, config.grasp_arc_length)

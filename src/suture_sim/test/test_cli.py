@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from suture_common import topics
-from suture_common.bag_io import bag_summary
+from suture_common.bag_io import bag_summary, read_messages
 from suture_sim.cli import main
 
 
@@ -94,3 +94,23 @@ def test_impossible_intrinsics_fail_cleanly(tmp_path):
     assert result.returncode == 1
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_help_and_errors_name_the_hard_topologies(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    help_text = capsys.readouterr().out
+    for name in ("hooked", "wide_occlusion", "along_rows", "hard"):
+        assert name in help_text
+    result = _run("--topology", "hooks", "--out", str(tmp_path / "b"))
+    assert "'wide_occlusion'" in result.stderr and "'hard'" in result.stderr
+
+
+def test_hard_mixture_writes_its_three_topologies(tmp_path, capsys):
+    bag = tmp_path / "bag"
+    code = main(
+        ["--topology", "hard", "--frames", "3", "--resolution", "320x240", "--out", str(bag), "--quiet"]
+    )
+    assert code == 0 and "wrote 3 frames" in capsys.readouterr().out
+    labels = [r.message.data for r in read_messages(bag, [topics.GT_TOPOLOGY])]
+    assert labels == ["hooked", "wide_occlusion", "along_rows"]

@@ -10,7 +10,7 @@ from suture_common.bag_io import BagWriter, read_messages
 from suture_common.camera import StereoCamera
 from suture_common.grasp import quaternion_to_rotation
 from suture_sim.output import write_frame
-from suture_sim.scene import TOPOLOGIES, SimConfig, generate_frame
+from suture_sim.scene import HARD_TOPOLOGIES, MIXTURES, TOPOLOGIES, SimConfig, generate_frame
 
 
 def _read_frames(bag) -> list[dict]:
@@ -20,14 +20,20 @@ def _read_frames(bag) -> list[dict]:
     return [frames[stamp] for stamp in sorted(frames)]
 
 
-@pytest.fixture(scope="module", params=[(640, 480), (1280, 1024)], ids=["640x480", "1280x1024"])
+@pytest.fixture(
+    scope="module",
+    params=[("mixed", 640, 480), ("mixed", 1280, 1024), ("hard", 640, 480), ("hard", 1280, 1024)],
+    ids=["mixed-640x480", "mixed-1280x1024", "hard-640x480", "hard-1280x1024"],
+)
 def bag_frames(request, tmp_path_factory):
-    """Two frames of every topology written to a bag and read back with rosbags."""
-    width, height = request.param
+    """Frames of every topology of a mixture (two each at 640x480, one at 1280x1024) written
+    to a bag and read back with rosbags."""
+    mixture, width, height = request.param
+    cycle = MIXTURES[mixture]
     bag = tmp_path_factory.mktemp("gt") / "bag"
-    config = SimConfig(topology="mixed", camera=StereoCamera.default(width, height), seed=11)
+    config = SimConfig(topology=mixture, camera=StereoCamera.default(width, height), seed=11)
     with BagWriter(bag) as writer:
-        for index in range(2 * len(TOPOLOGIES) if width == 640 else len(TOPOLOGIES)):
+        for index in range(2 * len(cycle) if width == 640 else len(cycle)):
             write_frame(writer, generate_frame(config, index))
     return _read_frames(bag)
 
@@ -56,13 +62,16 @@ def test_projected_centreline_lies_in_the_mask_and_on_the_sequence(bag_frames):
             mask = messages.image_to_array(frame[mask_topic], expect="mono8")
             sequence = messages.polygon_to_array(frame[sequence_topic])
             projected = camera.project(path, view)
-            # Sub-pixel: the projected 3D centreline runs along the 2D ground truth.
-            assert _distance_to_polyline(projected, sequence[:, :2]).max() < 0.05
+            # Sub-pixel: the projected 3D centreline runs along the 2D ground truth. A hook's
+            # bend can be ~1 px in radius, and 1 px chords cut it by up to 1 / (8 R) px.
+            tolerance = 0.15 if frame[topics.GT_TOPOLOGY].data == "hooked" else 0.05
+            assert _distance_to_polyline(projected, sequence[:, :2]).max() < tolerance
             # Wherever the target is visible, its centreline pixel is in the mask.
             visible = sequence[:, 2] == 1.0
             pixels = np.rint(sequence[visible, :2]).astype(int)
             assert np.all(mask[pixels[:, 1], pixels[:, 0]] == 255), view
-            assert visible.mean() > 0.7
+            # Wide shafts and a buried end may hide ~40 % of a short hard thread.
+            assert visible.mean() > (0.5 if frame[topics.GT_TOPOLOGY].data in HARD_TOPOLOGIES else 0.7)
 
 
 def test_left_and_right_sequences_share_rows_with_positive_disparity(bag_frames):
@@ -116,18 +125,22 @@ def test_physical_sizes_and_labels(bag_frames):
         tip = messages.point_to_array(frame[topics.TIP_HINT])
         first = messages.polygon_to_array(frame[topics.GT_LEFT_SEQUENCE])[0, :2]
         assert np.linalg.norm(tip[:2] - first) <= 3.0 + 1e-4
-    assert set(seen) == set(TOPOLOGIES)
+    assert set(seen) in (set(TOPOLOGIES), set(HARD_TOPOLOGIES))
 
 
 def test_occlusion_agrees_between_views(bag_frames):
-    """Crossings, loops and instruments hide the same stretch of the target in both views."""
+    """Crossings, loops, instruments and the tissue hide the same stretch of the target in both
+    views."""
     for frame in bag_frames:
         topology = frame[topics.GT_TOPOLOGY].data
         left = messages.polygon_to_array(frame[topics.GT_LEFT_SEQUENCE])[:, 2] == 0
         right = messages.polygon_to_array(frame[topics.GT_RIGHT_SEQUENCE])[:, 2] == 0
-        if topology in ("self_intersected", "occluded"):
+        if topology in ("self_intersected", "occluded", "wide_occlusion"):
             assert left.any() and right.any(), topology
-        if topology == "occluded":
+        if topology == "wide_occlusion":
+            # Shafts hover 2-10 mm above the thread (their hidden arc: test_hard_topologies).
+            assert np.sum(left & right) / np.sum(left | right) > 0.5
+        elif topology == "occluded":
             # The instrument floats 4-12 mm above the thread: parallax shifts its shadow a little.
             assert np.sum(left & right) / np.sum(left | right) > 0.5
             # It crosses the thread rather than lying along it: at most ~10 mm of thread hidden
