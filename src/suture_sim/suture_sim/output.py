@@ -1,6 +1,6 @@
 """Writing simulated frames: one MCAP bag message set per frame, and PNG training folders.
 
-Bag topics and frames follow DESIGN.md (``suture_common.topics``). Every message
+Bag topics and frames follow docs/interfaces.md (``suture_common.topics``). Every message
 of a frame carries the frame's stamp, and is logged at that time. Ground-truth
 sequences are PolygonStamped with x = u, y = v and z = 1.0 where the target's
 own surface is visible at that point, 0.0 where something covers it (see

@@ -3,7 +3,7 @@
 ``generate_frame(config, index)`` is the simulator's one entry point: it draws a
 scene from ``np.random.default_rng([config.seed, index])`` (so any frame can be
 regenerated alone, in any order), renders both views and returns a
-``SimFrame`` holding the images and the ground truth of DESIGN.md:
+``SimFrame`` holding the images and the ground truth of docs/interfaces.md:
 
 * masks of every visible thread (target and others; never the instrument);
 * the target's centreline from the cut tip projected into both views, as
