@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Repository-wide pytest set-up: hypothesis under CI, and the tests' ROS 2 (DDS) domains.
 
 Property tests are derandomised under CI, so a submission's CI run tries exactly the examples

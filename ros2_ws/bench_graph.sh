@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Latency benchmark of the whole node graph (image publication -> grasp pose received), on the
 # real middleware, with the nodes as separate processes (ros2_ws/launch.sh):
 #   1. frame by frame (--as-fast-as-graph): each frame sent when the previous grasp pose arrived,

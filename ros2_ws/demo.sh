@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The main job (README Quick start): set up, replay the bundled bag through the real node graph
 # (segmentation -> ordering -> reconstruction -> dry_run executor, each node its own process,
 # ros2_ws/launch.sh), record the graph's outputs to MCAP, then print per frame the grasp point in

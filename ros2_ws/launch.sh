@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Start the node graph of docs/interfaces.md with one parameter file, optionally replay a bag
 # through it and record its outputs; stop everything cleanly on Ctrl-C, on SIGTERM, or when the
 # replay ends.

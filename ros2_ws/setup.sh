@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # One idempotent set-up: creates .venv at the repository root with the pinned
 # dependencies (requirements.txt + constraints.txt) and installs every package
 # under src/ into it (editable, so a `git pull` needs no reinstall).

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # The project's test command (README Quick start; CI runs exactly this).
 # Sets up the environment if needed, then: ruff lint and format check,
 # import-linter contracts (docs/interfaces.md one-way dependencies), and pytest.

@@ -1,4 +1,5 @@
 #!/usr/bin/env bash
+# SPDX-License-Identifier: Apache-2.0
 # Regenerate the segmentation data, the three models of the paper's Table I and the report.
 #
 #   bash ros2_ws/train_segmentation.sh [OUT]      (default OUT: out/segmentation)

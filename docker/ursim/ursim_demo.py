@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# SPDX-License-Identifier: Apache-2.0
 """Drive executor_node once, end to end, with a grasp pose placed just below the robot's current tool.
 
 For the URSim recipe (docker-compose.yml next to this file); not run by CI. It

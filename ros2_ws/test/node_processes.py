@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A small harness for tests that run the pipeline's nodes as separate processes.
 
 :class:`NodeProcess` starts one installed node executable (``.venv/bin/<name>``, what

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Ctrl-C at a random moment ends every node executable cleanly: exit status 0, no traceback.
 
 Each executable is started :data:`INTERRUPTS_PER_NODE` times, :data:`CONCURRENT` at a time,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The runnable examples in the docstrings of the stages' entry points run and show what they say.
 
 Each example works on a small synthetic input (a drawn thread mask, a projected 3D curve, a

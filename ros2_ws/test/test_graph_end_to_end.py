@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The running system end to end: ros2_ws/launch.sh replays the bundled bag through the node graph.
 
 The four pipeline nodes, the player and the recorder run as separate processes on the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The running system under bad input and crashes: the four pipeline nodes as separate processes.
 
 docs/interfaces.md, "Bad input": a node never dies on a message; it drops a malformed input with a log

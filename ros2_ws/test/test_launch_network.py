@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ros2_ws/launch.sh keeps discovery on this host unless the user chose otherwise.
 
 Runs ``launch.sh --dry-run``, which sets up the environment the nodes would inherit, prints it

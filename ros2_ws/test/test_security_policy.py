@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The SROS2 policy (ros2_ws/security/policy.xml) against the topics and services the nodes use.
 
 The policy is read as sros2 reads it (policy format 0.2.0: enclaves, profiles, topics with

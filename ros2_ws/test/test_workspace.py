@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The workspace is a real ROS 2 workspace: ament_python packages that colcon builds, whose
 installed executables run the way ``ros2 run PKG EXE`` runs them on a full install."""
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ament_python package definition; `colcon build` and `pip install` both use it."""
 
 from setuptools import find_packages, setup

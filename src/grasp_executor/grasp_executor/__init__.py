@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Grasp executor: grasp poses in the camera frame -> safe robot motion (docs/interfaces.md, "Robots").
 
 ROS-free core: ``geometry`` (Pose, quaternion <-> rotation vector), ``handeye``

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """rclpy implementation of :class:`grasp_executor.backends.dvrk.CrtkTransport` (node side).
 
 Topics under the arm namespace (default ``/PSM1``): publishes ``move_cp``

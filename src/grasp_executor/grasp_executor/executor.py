@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ROS-free executor: latest inputs, the state machine, and runs of plans through the safety gate.
 
 States (docs/interfaces.md, ``/grasp_executor/state``)::

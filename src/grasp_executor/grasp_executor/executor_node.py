@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """executor_node: grasp poses in, robot motion out, through :class:`grasp_executor.executor.GraspExecutor`.
 
 Subscribes ``/suture/grasp_pose`` (PoseStamped) and ``/suture/path`` (Path) in

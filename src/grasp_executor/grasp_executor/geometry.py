@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Poses and rotations for the executor: the :class:`Pose` value, quaternion <-> rotation vector, slerp.
 
 Conventions: positions in metres, quaternions (x, y, z, w) as in ROS messages,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The hand-eye transform T_base_camera: camera-frame grasp poses into the robot base frame.
 
 Convention (docs/executor.md has a worked example): ``translation`` (metres) and

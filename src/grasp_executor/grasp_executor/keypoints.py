@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Key-point mode: the paper's UR5 validation (Section III.B.2, Table II).
 
 A touching tip visits N points evenly spaced by arc length along the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Motion plans: steps (move, jaw, dwell) and the grasp plan.
 
 A grasp plan from a grasp pose in the robot base frame (x along the thread,

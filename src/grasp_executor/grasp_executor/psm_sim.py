@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A kinematic PSM, like the dVRK's kinematic simulation mode: the measured pose follows the goal.
 
 Each ``move_cp`` goal starts a trajectory from the current pose: position on a

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """psm_sim_node: a kinematic dVRK PSM on CRTK topics, for tests and demos (no dVRK needed).
 
 Under ``namespace`` (default ``/PSM1``) it subscribes ``move_cp`` (PoseStamped)

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Every safety check of the executor, in one place: :class:`SafetyGate` and :class:`GuardedBackend`.
 
 Checks (each refusal raises :class:`RefusedError` whose ``reason`` a person can act on):

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Fakes shared by the grasp_executor tests: a fake clock, robot seams that record every call.
 
 Test modules are imported with ``--import-mode=importlib``, so they cannot

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Backends through their interface with the robot seam replaced: dvrk (fake CRTK transport), ur (fake RTDE).
 
 Also the kinematic PSM model behind psm_sim_node.

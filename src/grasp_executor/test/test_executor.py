@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """GraspExecutor (ROS-free): states, refusals, faults with a stop, abort, key-point mode; all backends.
 
 The scene is the hand-eye worked example of docs/executor.md: the camera looks

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Quaternion <-> rotation vector (the UR wire format), quaternion product and slerp, against scipy."""
 
 from __future__ import annotations

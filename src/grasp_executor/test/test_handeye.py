@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Hand-eye transform T_base_camera: the documented worked example, YAML forms and errors."""
 
 from __future__ import annotations

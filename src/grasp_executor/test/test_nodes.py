@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The nodes over real rclpy topics and services: executor_node with the dvrk backend against psm_sim_node,
 key-point mode, a lost connection mid-motion, bad input, arming, parameters and main().
 

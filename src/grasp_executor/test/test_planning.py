@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Grasp plans and key-point plans: geometry of pre-grasp, lift, tool rotation and point spacing."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Property tests: whatever the grasp pose, hand-eye transform and workspace box, no command sent to a
 backend lies outside the box or beyond the maximum step, and NaN never reaches a backend.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """SafetyGate: every refusal reason, with numbers a person can act on; GuardedBackend never bypasses it."""
 
 from __future__ import annotations

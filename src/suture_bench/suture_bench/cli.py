@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-eval PATH... [--masks predicted|ground_truth] [--sequences predicted|ground_truth] [--json FILE]
 [--report DIR]``
 

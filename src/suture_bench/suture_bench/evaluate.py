@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Offline evaluation over MCAP bags: the same core functions as the nodes, scored against ground truth.
 
 ``evaluate(paths, masks=..., sequences=...)`` walks every frame of the bags,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bags as frames of numpy arrays, for every offline tool of suture_bench.
 
 ``find_bags`` expands paths into bags; ``read_frames`` joins a bag's input and

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-graph-report``: score and show what the node graph published for a replayed bag.
 
 The demo replays a simulator bag through the running nodes and records their

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """docs/nodes.md, generated from the nodes themselves: topics, services and parameters of each.
 
 ``python -m suture_bench.nodes_doc [--check] [PATH]`` builds every node of the project in a

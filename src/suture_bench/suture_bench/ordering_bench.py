@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-order-bench``: ordering success per topology and milliseconds per mask, on simulator bags.
 
 Runs :func:`suture_ordering.order_stereo` on the ground-truth masks and tip hints

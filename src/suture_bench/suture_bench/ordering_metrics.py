@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Ordering success (docs/interfaces.md, "Offline evaluation contract") as a pure function.
 
 An ordering succeeds when the predicted sequence

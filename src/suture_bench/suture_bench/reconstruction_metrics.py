@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Reconstruction metrics, as the paper's Tables II and III report them, and a benchmark of the 3D stage.
 
 Pure metrics (no I/O), called by ``suture-eval`` and by the benchmark below:

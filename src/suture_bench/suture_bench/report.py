@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A report folder of what the pipeline did on each frame of a bag, for ``suture-eval --report``
 and ``suture-graph-report`` (one writer, so both show the same pictures and records)::
 

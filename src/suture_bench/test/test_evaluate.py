@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """suture-eval follows docs/interfaces.md's evaluation contract on the sample bag."""
 
 from __future__ import annotations

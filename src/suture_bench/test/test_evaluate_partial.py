@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """suture-eval on bags that carry less than the simulator's: true masks only, sequences with
 z = 0, damaged files, no frames at all; and ``--report``."""
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """suture-graph-report scores recorded outputs exactly as suture-eval scores the core functions."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """docs/nodes.md is what the nodes' code gives, and every node parameter is described and bounded."""
 
 from __future__ import annotations

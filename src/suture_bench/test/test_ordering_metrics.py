@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ordering_success: the docs/interfaces.md ordering criterion on hand-made truths and predictions."""
 
 from __future__ import annotations

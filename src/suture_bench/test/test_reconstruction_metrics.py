@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Reconstruction metrics (paper Tables II and III) and the 3D-stage benchmark over bags."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Shared, ROS-free helpers of the suture grasping pipeline.
 
 Modules: ``camera`` (rectified stereo model), ``grasp`` (grasp frame

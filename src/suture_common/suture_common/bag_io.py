@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Reading and writing rosbag2 bags with MCAP storage, without rclpy or rosbag2.
 
 A bag written here is a rosbag2 directory (format version 9)::

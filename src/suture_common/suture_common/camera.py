@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Rectified stereo pinhole camera: projection, triangulation and CameraInfo fields.
 
 Conventions (REP-103, ``image_pipeline``):

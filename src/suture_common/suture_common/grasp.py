@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The grasp frame convention, shared by the simulator's ground truth and the reconstruction stage.
 
 A grasp pose at a point on the thread has:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Conversion between ROS 2 messages and numpy arrays, without rclpy.
 
 Builders (``*_message``) return message instances of the ``rosbags`` ROS 2

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The nodes' ROS parameters as data: name, default, description and range, without rclpy.
 
 Every node lists its parameters as :class:`ParameterSpec` objects; :func:`suture_common.ros.

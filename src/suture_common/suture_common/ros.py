@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """rclpy glue shared by the nodes and node tests: message classes, CDR, QoS, spinning.
 
 This is the only module of ``suture_common`` that imports rclpy; everything else

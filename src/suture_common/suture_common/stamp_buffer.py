@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Pairing of left and right inputs by exact ``header.stamp`` (docs/interfaces.md), without rclpy.
 
 The one stamp synchroniser of the project (what message_filters gives on a full install);

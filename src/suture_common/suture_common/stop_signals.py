@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """SIGINT and SIGTERM as a flag: how every node executable stops through its clean-up.
 
 Python's default SIGINT handler raises ``KeyboardInterrupt`` wherever the main thread happens

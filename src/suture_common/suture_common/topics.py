@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Default topic names and frame ids (docs/interfaces.md), one place for nodes, simulator and evaluator."""
 
 LEFT_FRAME = "left_camera_optical_frame"

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """MCAP bag writing and reading: rosbags round trip, independent mcap decoding, errors."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """CameraInfoCache: the latest camera_info per view and the stereo camera built from them once."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Round trips and error cases of suture_common.messages (no rclpy needed)."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ParameterSpec and declare_parameters: descriptions and ranges reach rclpy, bad values are refused."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Replay a bag through rclpy (read_raw + from_cdr -> publish -> subscribe) and compare the messages.
 
 :func:`replay_and_receive` takes any bag path, so the same check can later be run

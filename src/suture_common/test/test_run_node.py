@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """run_node, the one process shell of every node executable: signals, bad parameters, finish.
 
 These run the shell in the test process (the default rclpy context on this module's domain), so

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stamp-keyed pairing of the left and right sequences."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """StopSignals: SIGINT and SIGTERM become a flag; handlers come back, or stay ignored once stopping."""
 
 import os

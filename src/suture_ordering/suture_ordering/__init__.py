@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Ordering stage: the pixel sequence of the target thread from its cut tip, in both views.
 
 ROS-free core (paper Section II.B): :func:`order_sequence` for one view and

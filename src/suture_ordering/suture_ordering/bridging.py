@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Gaps in the mask: when a step whose chord leaves the zone (O > 0) may bridge the gap.
 
 τ_O and gaps.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Mask cleaning: input checks, small holes filled, specks removed, the search's padded lookup arrays.
 
 The ordering search only needs the cleaned mask and a slightly dilated "zone"

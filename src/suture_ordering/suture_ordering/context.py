@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """What stays fixed during one ordering search: the mask reader, the parameters in pixels and
 the tuning grid, passed to every step of :mod:`suture_ordering.search`."""
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ROS-free entry points of the ordering stage: :func:`order_sequence` (one view) and
 :func:`order_stereo` (a rectified pair), as called by ``ordering_node`` and the offline evaluator.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Where the ordered sequence ends: the last, shorter piece to the thread's free end, and how
 the search ended.
 

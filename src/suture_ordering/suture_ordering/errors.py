@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Exceptions of the ordering stage.
 
 Every failure of :func:`suture_ordering.order_sequence` and

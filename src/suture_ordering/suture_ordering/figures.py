@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-order-figures``: the ordered sequence in gradient colour over the left image (paper Fig. 6).
 
 For each topology in a simulator bag (``/ground_truth/topology``), the first

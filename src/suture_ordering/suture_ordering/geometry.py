@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Plane geometry of the ordering search: angles between directions, rotations, the bend of a
 connection and the cubic Hermite curve of a smooth step.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Junctions ahead of the search (crossings, the thread's own loops, touching threads): when a
 step is decided across the whole junction, and which arm the thread leaves through.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Leaving a loop across the thread's own first pass, where the usual step finds nothing.
 
 Back round a loop at its own crossing, the way out may share the first

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """How the ordering search reads the cleaned mask: centreline nodes on circles, the out-of-zone
 count O, the thread's tangent at a node, and how far the mask reaches along a direction.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ordering_node: thread masks in, ordered centreline sequences out, through :func:`order_stereo`.
 
 Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data QoS),

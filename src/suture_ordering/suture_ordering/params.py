@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Parameters of the ordering search (paper Section II.B) and their resolution-dependent values.
 
 Lengths are in pixels **for an image 640 px wide**; with ``reference_width_px``

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """One fork of the ordering search: the path it has traversed, the thread's width and the
 direction its curvature predicts, and how a step extends it.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """When ordering_node orders a mask pair: pairing, the wait for low masks, the hold for camera_info.
 
 ROS-free and driven by a clock given to it (``time.monotonic`` in the node, a fake one in tests).

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ordering search of the paper's Section II.B (Eq. 4-7), vectorised per step.
 
 Starting at the cut tip ``V^1``, each loop ``t`` elects the next vertex

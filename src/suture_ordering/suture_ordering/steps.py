@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """One step of the ordering search: the admissible nodes around the current vertex, read circle
 by circle from the nearest, among which the parameter sets elect the next vertex (Eq. 6).
 

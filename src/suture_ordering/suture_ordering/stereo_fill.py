@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stereo help for the ordering: one view's sequence mended from the other view where its own search failed.
 
 A predicted mask often loses a stretch of the thread (low contrast at a

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Cut-tip localisation in the left view (from a hint or automatically) and in the right view.
 
 The cut tip is a *free end* of the thread's centreline: an end point (one

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The composite cost of Eq. (5) over the tuning grid of Eq. (7).
 
 Each candidate node ``A_j`` of a step costs::

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ordering_node over rclpy: masks, tip hint and camera_info in, both sequences out; bad input dropped.
 
 Each test uses its own rclpy Context on a DDS domain derived from the process id, so

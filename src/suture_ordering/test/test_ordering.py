@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Behaviour of the ordering core on synthetic masks drawn with cv2 and on the sample bag.
 
 Every scene states the thread's true centreline; a result is checked against it:

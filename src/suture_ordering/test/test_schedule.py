@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """ordering_node's timing (MaskPairSchedule) driven by a fake clock: pairing, low-mask waits, holds."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The choices made where the paper is ambiguous (see suture_ordering.search), the tuning grid,
 the parameters, the stamp pairer and the node's parameter mapping."""
 

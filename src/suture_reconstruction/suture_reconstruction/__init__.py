@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Reconstruction stage: stereo pairing, triangulation, shape graph optimiser (Algorithm 1), grasp pose.
 
 The ROS-free entry point is :func:`reconstruct`; ``reconstruction_node`` is its

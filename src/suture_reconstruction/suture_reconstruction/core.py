@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The reconstruction stage's one entry point: two ordered sequences and a camera in, 3D thread and grasp out.
 
 :func:`reconstruct` is what ``reconstruction_node`` and the offline evaluator

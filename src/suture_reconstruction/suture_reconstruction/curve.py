@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """A smooth, arc-length parametrised 3D curve through the optimised vertices, and the grasp pose on it.
 
 The vertices of the shortest path (:mod:`suture_reconstruction.shape_graph`)

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Exceptions of the reconstruction stage.
 
 Every problem with the inputs raises a subclass of :class:`ReconstructionError`

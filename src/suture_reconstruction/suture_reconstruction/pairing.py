@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stereo pairing of two ordered thread sequences under the parallel-optical-axis (rectified) model.
 
 In a rectified pair a 3D point appears on the same image row v in both views, at

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Photometric refinement of the disparity along the thread: the images, not the masks, say where it is.
 
 The pairs of :mod:`suture_reconstruction.pairing` come from the two views'

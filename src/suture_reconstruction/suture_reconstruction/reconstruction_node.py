@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """reconstruction_node: ordered sequences in, 3D thread and grasp pose out, through :func:`reconstruct`.
 
 Subscribes ``/suture/left/sequence`` and ``/suture/right/sequence``

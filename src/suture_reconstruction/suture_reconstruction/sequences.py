@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Image sequences of the thread: validation, light smoothing and arc-length resampling.
 
 A sequence is an ordered centreline from the cut tip in one rectified view, as

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Spatial shape optimisation: Algorithm 1 of the paper (Section II.C, Eq. 8-12) on a sparse graph.
 
 Given the dense 3D vertices V^1..V^w1 in thread order (from the cut tip), the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Fast 1D smoothers on uniform grids, shared by the pairing and curve steps.
 
 * :func:`savgol` - Savitzky-Golay filtering (value or first derivative) along

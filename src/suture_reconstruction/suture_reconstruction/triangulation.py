@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """3D points of the thread: triangulation of the left samples with a supported disparity, and
 their resampling into the evenly spaced vertices that Algorithm 1 takes.
 

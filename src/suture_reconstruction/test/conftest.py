@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Shared fixtures: synthetic stereo threads with exact ground truth, and the committed sample bag."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """reconstruct(): accuracy on synthetic threads and on the sample bag, and every bad input's error."""
 
 from __future__ import annotations

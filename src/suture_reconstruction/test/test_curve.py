@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The arc-length curve, its length, and the grasp pose on it."""
 
 from __future__ import annotations

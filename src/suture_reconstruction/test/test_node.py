@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """reconstruction_node over real rclpy topics: sequences and camera_info in, path and grasp pose out.
 
 Each test runs its own rclpy Context on a DDS domain derived from the process id;

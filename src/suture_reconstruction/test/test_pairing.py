@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stereo pairing: row crossings, monotone selection where rows cross the thread several times, disparity."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Photometric refinement: sub-pixel disparity from the images, and what it does to the grasp."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Algorithm 1 (Eq. 8-12): the sparse implementation against a literal dense one, and the self-crossing."""
 
 from __future__ import annotations

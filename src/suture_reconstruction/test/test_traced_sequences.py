@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """reconstruct() on sequences traced from pixel masks (regression of the length inflation of issue 7).
 
 ``data/traced_frames.npz`` holds three simulated frames (``suture-sim --topology mixed

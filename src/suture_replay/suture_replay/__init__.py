@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bag replay and recording for the suture pipeline, without rosbag2.
 
 ``player_node`` publishes the input frames of a bag (recorded timing or as fast as the

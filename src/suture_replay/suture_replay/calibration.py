@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Stereo calibration files and the rectification of raw endoscope frames, as ROS ``image_proc`` does.
 
 A calibration is read from one of:

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-import``: raw stereo recordings from a real endoscope into a bag of docs/interfaces.md.
 
 Sources (one of):

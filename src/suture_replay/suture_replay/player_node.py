@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """player_node: replay a bag's input topics into the ROS graph and measure the pipeline's latency.
 
 What ``ros2 bag play`` does for this project (which has no rosbag2), plus a latency

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """recorder_node: record pipeline topics into a rosbag2 MCAP bag, like ``ros2 bag record``.
 
 Parameters (read at start-up; :data:`PARAMETERS`):

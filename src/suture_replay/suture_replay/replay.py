@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Bag replay and recording without ROS: frames of a bag, the replay plan, latency and the report.
 
 :mod:`suture_replay.player_node` and :mod:`suture_replay.recorder_node` are thin rclpy

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """suture-import: simulator frames distorted with a known stereo calibration come back rectified.
 
 The simulator renders rectified frames of a known camera. Here they are turned into what a

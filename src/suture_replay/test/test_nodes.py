@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """player_node and recorder_node over rclpy: in-process graphs, and the executables as subprocesses.
 
 Each test uses its own rclpy Context on the module's DDS domain from the root conftest (the

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ROS-free core of the player and recorder: frames, plan, settings, latency report, signals."""
 
 from __future__ import annotations

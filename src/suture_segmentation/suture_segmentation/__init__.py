@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Segmentation stage: the suture U-Net, its training and export CLI (``suture-seg``), inference.
 
 The ROS-free entry point is :class:`suture_segmentation.core.Segmenter` (and

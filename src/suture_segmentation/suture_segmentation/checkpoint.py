@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Checkpoint files (.pt) and ONNX export of :class:`~suture_segmentation.model.SutureUNet`.
 
 A checkpoint is a ``torch.save`` dict loaded with ``weights_only=True`` (no pickled code)::

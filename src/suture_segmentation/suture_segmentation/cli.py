@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-seg``: train, fine-tune, evaluate, export and benchmark the suture U-Net.
 
 Sub-commands::

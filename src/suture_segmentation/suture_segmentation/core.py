@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Inference: suture masks from camera images, with a PyTorch or an ONNX Runtime backend.
 
 This is the ROS-free entry point that ``segmentation_node`` and ``suture-eval`` both call.

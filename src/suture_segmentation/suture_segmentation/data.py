@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Training data: PNG folders of images and masks, and random training crops from them.
 
 Folder format (what ``suture-sim --png-dir`` writes and what ``suture-seg finetune --images

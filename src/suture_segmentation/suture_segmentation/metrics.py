@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Segmentation metrics: the paper's IoU, precision, recall and F1 (Section III.A) and
 thin-structure measures of the centreline, per image or pooled over many.
 

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The suture U-Net: a frozen-able 13-layer feature extractor and a trainable decoder.
 
 The paper (Section II.A) extends the first 11 layers of U-Net to 13 and uses them as the

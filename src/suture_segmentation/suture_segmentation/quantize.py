@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Int8 ONNX models: the suture U-Net quantised for faster CPU inference (``suture-seg export --int8``).
 
 Static quantisation with ONNX Runtime in the QDQ format: weights int8 per output channel,

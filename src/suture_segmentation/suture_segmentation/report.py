@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Table I / Fig. 5 reproduction and the inference benchmark behind ``suture-seg evaluate|bench``.
 
 * :func:`evaluate_models` scores several checkpoints on several labelled test sets, per image;

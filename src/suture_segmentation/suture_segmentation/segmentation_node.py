@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """segmentation_node: rectified stereo images in, suture masks out (:meth:`Segmenter.segment_pair_with_low`).
 
 Subscribes ``/stereo/left/image_rect`` and ``/stereo/right/image_rect`` (sensor_msgs/Image,

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Training and fine-tuning loops (the paper's offline training and transfer, Section II.A).
 
 * :func:`train` fits every layer: M-oST on legacy synthetic images, M-TOT on the 40 on-site ones.

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Shared fixtures: a small random-weights checkpoint and tiny labelled PNG folders."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Thin-structure measures (centreline recall, precision, clDice) on shapes with known answers."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """PNG folders, training crops, and inference: backends agree, bad input and bad weights are refused."""
 
 from __future__ import annotations

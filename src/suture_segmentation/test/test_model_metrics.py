@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The U-Net's shape contract, the 13-layer frozen extractor, and the paper's metrics."""
 
 from __future__ import annotations

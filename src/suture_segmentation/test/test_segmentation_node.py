@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """segmentation_node over rclpy: stereo images in, both masks out; bad input dropped; bad weights refused.
 
 Each test uses its own rclpy Context on a DDS domain derived from the process id, so parallel

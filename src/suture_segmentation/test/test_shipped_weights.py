@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The shipped checkpoints: small, made by the recorded command, and M-ToSOT wins on the on-site domain.
 
 The on-site frames here are fresh simulator frames (seed 4242, not the training or test seeds of

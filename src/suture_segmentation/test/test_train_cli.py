@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Training learns, fine-tuning keeps the extractor, and the ``suture-seg`` commands work end to end."""
 
 from __future__ import annotations

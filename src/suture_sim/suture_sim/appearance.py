@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Camera and domain appearance: turns a composited linear-RGB render into an 8-bit camera frame.
 
 The renderer composites a linear-RGB float32 image (scene radiance, nominally in [0, 1]); this

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-sim-bench``: frames per second of the simulator.
 
 Prints two figures for the requested resolution and topology (default ``mixed``):

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-sim``: write simulated stereo suture frames with ground truth to an MCAP bag
 and/or PNG training folders.
 

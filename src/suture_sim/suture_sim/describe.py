@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """``suture-bag-info BAG [--contact-sheet PNG]``: what a simulated (or recorded) bag holds.
 
 Prints each topic with its type and message count, then one line per frame

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Suture centreline shapes: planar curves by topology, crossings, and lifting onto a tissue surface.
 
 A thread is first drawn as a planar curve (arrays of shape (N, 2), metres) by

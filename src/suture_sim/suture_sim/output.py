@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Writing simulated frames: one MCAP bag message set per frame, and PNG training folders.
 
 Bag topics and frames follow docs/interfaces.md (``suture_common.topics``). Every message

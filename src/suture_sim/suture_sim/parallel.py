@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Frame generation over worker processes, in frame order.
 
 Frames are independent (each is drawn from its own seed and index), so they

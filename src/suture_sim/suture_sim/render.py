@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Rendering of one view of a scene: a ray-cast tissue surface and z-buffered tubes.
 
 The tissue surface is a height field ``z = z0 + gx*x + gy*y - relief(x, y)`` in

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Random stereo scenes by topology, rendered into frames with exact ground truth.
 
 ``generate_frame(config, index)`` is the simulator's one entry point: it draws a

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Procedural surface textures for the suture simulator: in-vivo tissue, silicone phantom, printed photo.
 
 A texture is a square patch of side ``extent_m`` metres sampled on an S x S grid. It carries

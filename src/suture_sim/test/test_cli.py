@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """suture-sim's command line: bags and PNG folders it writes, and one-line errors on bad input."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The simulator's ground truth is exact, read back from a bag as any user would read it."""
 
 from __future__ import annotations

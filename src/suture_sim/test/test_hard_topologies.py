@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The hard topologies have the property that defines each, measured on the ground truth.
 
 Every measure starts from the true left and right sequences (triangulated into the 3D

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The committed sample bag: small, complete, readable by rosbags and by the mcap tools, reproducible."""
 
 from __future__ import annotations

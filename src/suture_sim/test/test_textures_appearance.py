@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Tests of the procedural surface textures and the camera/domain appearance effects."""
 
 from __future__ import annotations

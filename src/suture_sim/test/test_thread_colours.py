@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Thread colours are drawn only among those an annotator could see on the frame's background."""
 
 from __future__ import annotations

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """Robot backends behind one small interface (:class:`grasp_executor.backends.base.Backend`).
 
 ``dry_run`` (moves nothing), ``dvrk`` (CRTK topics through a transport seam) and

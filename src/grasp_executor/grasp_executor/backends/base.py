@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The backend interface and the faults a backend reports.
 
 A backend moves one robot. Its calls block until the motion ends, so a caller

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ``dry_run`` backend: logs every command and moves nothing.
 
 It keeps a virtual tool that is wherever it was last commanded. There is no

@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ``dvrk`` backend: a dVRK PSM through its CRTK topics, behind a transport seam.
 
 The backend logic (what to send, what to wait for, when to give up) is here and

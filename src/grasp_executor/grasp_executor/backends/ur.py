@@ -1,3 +1,4 @@
+# SPDX-License-Identifier: Apache-2.0
 """The ``ur`` backend: a Universal Robots arm through ``ur_rtde``.
 
 Poses on the wire are ``[x, y, z, rx, ry, rz]``: metres and a rotation vector
