@@ -36,6 +36,8 @@ from suture_sim.render import INSTRUMENT, Lighting, Surface, Tube, ViewRender, r
 TOPOLOGIES = ("straight", "curved", "self_intersected", "crossed", "occluded")
 DOMAINS = ("legacy", "on-site")
 BACKGROUNDS = ("tissue", "phantom", "printed")
+#: ``raster``: the fast ray-cast renderer of ``render``; ``cycles``: Blender Cycles (``cycles``).
+RENDERERS = ("raster", "cycles")
 
 #: Thread colours, linear RGB albedo (violet and undyed polyglactin, green, blue, black, white).
 THREAD_COLOURS = {
@@ -69,7 +71,7 @@ class SceneError(RuntimeError):
 @dataclass(frozen=True)
 class SimConfig:
     """What to simulate. ``background`` None means: tissue for legacy, phantom or
-    printed (alternating) for on-site."""
+    printed (alternating) for on-site. ``samples`` is the Cycles renderer's samples per pixel."""
 
     topology: str
     camera: StereoCamera
@@ -79,8 +81,14 @@ class SimConfig:
     grasp_arc_length: float = 0.05
     frame_period_ns: int = 100_000_000
     start_ns: int = 1_700_000_000_000_000_000
+    renderer: str = "raster"
+    samples: int = 16
 
     def __post_init__(self) -> None:
+        if self.renderer not in RENDERERS:
+            raise ValueError(f"unknown renderer {self.renderer!r}; choose raster or cycles")
+        if self.samples < 1:
+            raise ValueError(f"samples must be at least 1, got {self.samples}")
         if self.topology not in (*TOPOLOGIES, "mixed"):
             raise ValueError(
                 f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGIES)}, mixed"
@@ -154,8 +162,22 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
             position=np.array([camera.baseline / 2, rng.uniform(-0.003, 0.003), -0.002]),
             reference_distance=float(np.median(scene.target[:, 2])) * rng.uniform(0.85, 1.15),
         )
-        left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
-        right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
+        if config.renderer == "cycles":
+            from suture_sim import cycles
+
+            # The render's own draws come from a generator of their own: the ground truth and
+            # the look stay those of the raster renderer for the same seed and index.
+            left, right = cycles.render_stereo(
+                camera,
+                scene.surface,
+                scene.tubes,
+                lighting,
+                np.random.default_rng([config.seed, index, TOPOLOGIES.index(topology), len(RENDERERS)]),
+                cycles.CyclesSettings(samples=config.samples),
+            )
+        else:
+            left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
+            right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
         frame = _annotate(config, index, topology, background, scene, left, right, rng)
         if frame is not None:
             return frame
