@@ -37,8 +37,12 @@ fixed seed.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import sys
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,6 +58,8 @@ TISSUE_INDEX = 1
 INSTRUMENT_INDEX = 2
 THREAD_INDEX = 10
 
+#: Light bounces of a path (half of them diffuse, half glossy at most).
+MAX_BOUNCES = 4
 #: Sides of a tube's polygonal cross-section (threads and instruments).
 TUBE_SIDES = 10
 #: Length of one braid repeat along the thread, metres.
@@ -77,15 +83,27 @@ class CyclesSettings:
     threads: int = 0
 
 
-def _import_bpy():
+def import_bpy():
+    """Import ``bpy`` (and check OpenEXR), or raise :class:`CyclesUnavailableError`.
+
+    Blender reports on standard output that it found no audio device, which is dropped. Its
+    audio module is built against NumPy 1.x and prints a long warning (plus a caught
+    ImportError) on standard error when NumPy 2 loads it; the renderer never plays audio, so
+    exactly that warning is dropped and any other error output of the import is passed on.
+    """
     try:
-        import bpy
         import OpenEXR  # noqa: F401 - checked here so a missing extra fails before rendering
+
+        captured = io.StringIO()
+        with contextlib.redirect_stderr(captured), _blender_log_silenced():
+            import bpy
     except ImportError as error:
         raise CyclesUnavailableError(
             f"the cycles renderer needs Blender's bpy module and OpenEXR ({error}); "
             "install them with `bash ros2_ws/setup.sh --with-blender`"
         ) from None
+    if "compiled using NumPy 1.x" not in captured.getvalue():
+        sys.stderr.write(captured.getvalue())
     return bpy
 
 
@@ -102,7 +120,7 @@ def render_stereo(
     ``rng`` draws the render's own choices (light placement, focus, aperture, materials'
     fine parameters); the scene's geometry is fixed by the arguments.
     """
-    bpy = _import_bpy()
+    bpy = import_bpy()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     blender = bpy.context.scene
     _configure(blender, camera, settings)
@@ -154,19 +172,19 @@ def _configure(blender, camera: StereoCamera, settings: CyclesSettings) -> None:
     cycles.use_denoising = False
     cycles.use_adaptive_sampling = False
     cycles.seed = 0
-    cycles.max_bounces = 4
-    cycles.diffuse_bounces = 2
-    cycles.glossy_bounces = 2
+    cycles.max_bounces = MAX_BOUNCES
+    cycles.diffuse_bounces = MAX_BOUNCES // 2
+    cycles.glossy_bounces = MAX_BOUNCES // 2
     cycles.transmission_bounces = 0
     cycles.volume_bounces = 0
     cycles.transparent_max_bounces = 0
     cycles.caustics_reflective = False
     cycles.caustics_refractive = False
+    cycles.use_light_tree = False  # two lights: sampling them directly is cheaper
     layer = blender.view_layers[0]
     layer.use_pass_z = True
     layer.use_pass_object_index = True
     world = blender.world or _new_world(blender)
-    world.use_nodes = True
     world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
 
     camera_data = _bpy().data.cameras.new("endoscope")
@@ -256,7 +274,6 @@ def _add_tissue(bpy, blender, surface: Surface, rng: np.random.Generator) -> Non
     image.pack()
 
     material = bpy.data.materials.new("tissue")
-    material.use_nodes = True
     nodes, links = material.node_tree.nodes, material.node_tree.links
     bsdf = nodes["Principled BSDF"]
     sampler = nodes.new("ShaderNodeTexImage")
@@ -355,7 +372,6 @@ def _add_thread(bpy, blender, tube: Tube, eye: np.ndarray, rng: np.random.Genera
     thread.pass_index = THREAD_INDEX + tube.owner
 
     material = bpy.data.materials.new(f"thread_{tube.owner}")
-    material.use_nodes = True
     nodes, links = material.node_tree.nodes, material.node_tree.links
     bsdf = nodes["Principled BSDF"]
     colour = np.clip(tube.colour, 0.0, 1.0)
@@ -424,7 +440,6 @@ def _add_instrument(bpy, blender, tube: Tube) -> None:
     part = _mesh_object(bpy, blender, "instrument", vertices, faces, None)
     part.pass_index = INSTRUMENT_INDEX
     material = bpy.data.materials.new("steel")
-    material.use_nodes = True
     bsdf = material.node_tree.nodes["Principled BSDF"]
     bsdf.inputs["Base Color"].default_value = (*np.clip(tube.colour * 1.4, 0, 1), 1.0)
     bsdf.inputs["Metallic"].default_value = 1.0
@@ -494,9 +509,25 @@ def _render_image(blender, masks: list, path: Path, focus: float, settings: Cycl
     cycles = blender.cycles
     cycles.samples = settings.samples
     cycles.filter_width = 1.5
-    cycles.max_bounces = 4
+    cycles.max_bounces = MAX_BOUNCES
     blender.camera.data.dof.use_dof = True
     return _render(blender, path)["Combined"][..., :3].copy()
+
+
+@contextlib.contextmanager
+def _blender_log_silenced() -> Iterator[None]:
+    """Send the process's standard output to /dev/null meanwhile: Blender prints its render
+    progress there from C, past ``sys.stdout``, which would garble a command's output."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _render(blender, path: Path) -> dict[str, np.ndarray]:
@@ -505,7 +536,8 @@ def _render(blender, path: Path) -> dict[str, np.ndarray]:
     import OpenEXR
 
     blender.render.filepath = str(path)
-    _bpy().ops.render.render(write_still=True)
+    with _blender_log_silenced():
+        _bpy().ops.render.render(write_still=True)
     passes = {}
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         for part in exr.parts:

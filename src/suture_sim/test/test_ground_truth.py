@@ -20,14 +20,24 @@ def _read_frames(bag) -> list[dict]:
     return [frames[stamp] for stamp in sorted(frames)]
 
 
-@pytest.fixture(scope="module", params=[(640, 480), (1280, 1024)], ids=["640x480", "1280x1024"])
+@pytest.fixture(
+    scope="module",
+    params=[(640, 480, "raster"), (1280, 1024, "raster"), (640, 480, "cycles")],
+    ids=["640x480", "1280x1024", "cycles-640x480"],
+)
 def bag_frames(request, tmp_path_factory):
-    """Two frames of every topology written to a bag and read back with rosbags."""
-    width, height = request.param
+    """Frames of every topology written to a bag and read back with rosbags: two each from the
+    raster renderer at 640x480, one each otherwise. The Cycles frames take one sample per pixel:
+    their ground truth comes from a render of its own, whatever the image's samples."""
+    width, height, renderer = request.param
+    if renderer == "cycles":
+        request.getfixturevalue("blender")
     bag = tmp_path_factory.mktemp("gt") / "bag"
-    config = SimConfig(topology="mixed", camera=StereoCamera.default(width, height), seed=11)
+    config = SimConfig(
+        topology="mixed", camera=StereoCamera.default(width, height), seed=11, renderer=renderer, samples=1
+    )
     with BagWriter(bag) as writer:
-        for index in range(2 * len(TOPOLOGIES) if width == 640 else len(TOPOLOGIES)):
+        for index in range(2 * len(TOPOLOGIES) if request.param == (640, 480, "raster") else len(TOPOLOGIES)):
             write_frame(writer, generate_frame(config, index))
     return _read_frames(bag)
 
