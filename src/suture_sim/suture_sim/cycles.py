@@ -24,10 +24,13 @@ of the raster renderer, under which a thread thinner than a pixel still owns the
 centreline passes through. Object indices: tissue 1, instruments 2, thread k ``THREAD_INDEX + k``.
 
 Camera. Blender's camera looks down its -Z axis with +Y up; the optical frame has z forward and
-y down, so the camera object is the optical frame turned by pi about x. Focal length, principal
-point (as lens shift) and pixel aspect reproduce the rectified pinhole ``StereoCamera`` exactly;
-Cycles samples pixel (c, r) around raster point (c + 0.5, r + 0.5), where the pinhole model puts
-pixel centres on integers.
+y down, so the camera object is the optical frame turned by pi about x. Focal length fx and the
+principal point (as lens shift) reproduce the rectified pinhole ``StereoCamera`` exactly; Cycles
+samples pixel (c, r) around raster point (c + 0.5, r + 0.5), where the pinhole model puts pixel
+centres on integers. Blender's non-square pixels cannot be written to EXR, so where fy != fx
+the whole scene is stretched by fy / fx along y instead (:func:`_stretch_to_square_pixels`): a square-pixel
+camera of focal length fx then sees every point where the camera of focal lengths (fx, fy)
+sees the unstretched one, at the same depth.
 
 ``bpy`` (the ``--with-blender`` extra of ``ros2_ws/setup.sh``) and ``OpenEXR`` are imported when a
 frame is rendered, never by importing this module. Blender holds one global scene per process: a
@@ -132,15 +135,17 @@ def render_stereo(
     midpoint = np.array([camera.baseline / 2, 0.0, 0.0])
     for tube in threads:
         _add_thread(bpy, blender, tube, midpoint, rng)
-    _add_lights(bpy, blender, camera, lighting, rng)
-    focus = _focus(bpy, blender, camera, threads, rng)
+    _add_lights(bpy, blender, lighting, rng)
+    _focus(blender, camera, threads, rng)
+    _stretch_to_square_pixels([obj for obj in blender.collection.objects if obj != blender.camera], camera)
     views = []
     with tempfile.TemporaryDirectory(prefix="suture-cycles-") as folder:
         for view in ("left", "right"):
             _place_camera(blender, camera, view)
             masks = [_add_mask_thread(bpy, blender, tube, camera, view) for tube in threads]
-            owner, depth = _render_ground_truth(blender, masks, Path(folder) / f"{view}_gt.exr", focus)
-            image = _render_image(blender, masks, Path(folder) / f"{view}.exr", focus, settings)
+            _stretch_to_square_pixels(masks, camera)
+            owner, depth = _render_ground_truth(blender, masks, Path(folder) / f"{view}_gt.exr")
+            image = _render_image(blender, masks, Path(folder) / f"{view}.exr", settings)
             views.append(ViewRender(image, depth, owner))
             for mask in masks:
                 mesh = mask.data
@@ -154,9 +159,6 @@ def _configure(blender, camera: StereoCamera, settings: CyclesSettings) -> None:
     render.engine = "CYCLES"
     render.resolution_x, render.resolution_y = camera.width, camera.height
     render.resolution_percentage = 100
-    # Blender's vertical pixel size over the horizontal one is fx / fy; both aspects must be >= 1.
-    ratio = camera.fx / camera.fy
-    render.pixel_aspect_x, render.pixel_aspect_y = (1.0, ratio) if ratio >= 1 else (1.0 / ratio, 1.0)
     render.threads_mode = "FIXED" if settings.threads else "AUTO"
     if settings.threads:
         render.threads = settings.threads
@@ -195,7 +197,7 @@ def _configure(blender, camera: StereoCamera, settings: CyclesSettings) -> None:
     camera_data.clip_end = 2.0
     # Lens shift in units of the image width (horizontal sensor fit); see the module docstring.
     camera_data.shift_x = (camera.width / 2 - 0.5 - camera.cx) / camera.width
-    camera_data.shift_y = (camera.cy - camera.height / 2 + 0.5) * (camera.fx / camera.fy) / camera.width
+    camera_data.shift_y = (camera.cy - camera.height / 2 + 0.5) / camera.width
     endoscope = _bpy().data.objects.new("endoscope", camera_data)
     endoscope.rotation_euler = (np.pi, 0.0, 0.0)
     blender.collection.objects.link(endoscope)
@@ -211,6 +213,15 @@ def _bpy():
 def _new_world(blender):
     blender.world = _bpy().data.worlds.new("world")
     return blender.world
+
+
+def _stretch_to_square_pixels(objects, camera: StereoCamera) -> None:
+    """Stretch ``objects`` (their geometry and position) by fy / fx along y; see the module
+    docstring. The camera itself, on the x axis, is never stretched."""
+    stretch = camera.fy / camera.fx
+    for obj in objects:
+        obj.scale[1] = stretch
+        obj.location[1] *= stretch
 
 
 def _place_camera(blender, camera: StereoCamera, view: str) -> None:
@@ -427,7 +438,7 @@ def _add_mask_thread(bpy, blender, tube: Tube, camera: StereoCamera, view: str):
     in that view, the true radius deep."""
     eye = camera.optical_centre(view)
     depth = tube.axis[:, 2]
-    side = np.maximum(tube.radius, MASK_RADIUS_PX * depth / camera.fx)
+    side = np.maximum(tube.radius, MASK_RADIUS_PX * depth / min(camera.fx, camera.fy))
     vertices, faces, _ = _tube_mesh(tube.axis, side, np.full(len(depth), tube.radius), eye, facing=True)
     mask = _mesh_object(bpy, blender, f"mask_{tube.owner}", vertices, faces, None)
     mask.pass_index = THREAD_INDEX + tube.owner
@@ -447,7 +458,7 @@ def _add_instrument(bpy, blender, tube: Tube) -> None:
     part.data.materials.append(material)
 
 
-def _add_lights(bpy, blender, camera: StereoCamera, lighting: Lighting, rng: np.random.Generator) -> None:
+def _add_lights(bpy, blender, lighting: Lighting, rng: np.random.Generator) -> None:
     """Two point lights beside the optical centres; their power makes a white Lambertian surface
     facing them at ``lighting.reference_distance`` about as bright as the raster renderer's."""
     spread = rng.uniform(0.003, 0.005)
@@ -464,8 +475,8 @@ def _add_lights(bpy, blender, camera: StereoCamera, lighting: Lighting, rng: np.
         blender.collection.objects.link(lamp)
 
 
-def _focus(bpy, blender, camera: StereoCamera, threads: list[Tube], rng: np.random.Generator) -> float:
-    """Set a mild depth of field focused near the target thread; returns the focus distance."""
+def _focus(blender, camera: StereoCamera, threads: list[Tube], rng: np.random.Generator) -> None:
+    """Set a mild depth of field focused near the target thread."""
     focus = float(np.median(threads[0].axis[:, 2])) * rng.uniform(0.92, 1.08)
     # Circle of confusion (px) at depth z: fx * aperture * |z - focus| / (z * focus).
     blur_px = rng.uniform(1.0, 2.0)  # at a third nearer than the focus
@@ -474,10 +485,9 @@ def _focus(bpy, blender, camera: StereoCamera, threads: list[Tube], rng: np.rand
     data.dof.focus_distance = focus
     # Cycles' aperture radius is (lens / 1000) / (2 * f-stop) in scene units (metres).
     data.dof.aperture_fstop = (data.lens / 1000) / aperture
-    return focus
 
 
-def _render_ground_truth(blender, masks: list, path: Path, focus: float) -> tuple[np.ndarray, np.ndarray]:
+def _render_ground_truth(blender, masks: list, path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Owner codes (H, W) int16 and planar depth (H, W) float32 of the pixel centres."""
     for obj in blender.collection.objects:
         if obj.name.startswith("thread_"):
@@ -499,7 +509,7 @@ def _render_ground_truth(blender, masks: list, path: Path, focus: float) -> tupl
     return owner, depth
 
 
-def _render_image(blender, masks: list, path: Path, focus: float, settings: CyclesSettings) -> np.ndarray:
+def _render_image(blender, masks: list, path: Path, settings: CyclesSettings) -> np.ndarray:
     """Linear RGB (H, W, 3) float32 of the physically based render."""
     for obj in blender.collection.objects:
         if obj.name.startswith("thread_"):

@@ -63,6 +63,21 @@ def test_cycles_image_is_its_own_and_shows_the_thread(frame_pairs):
         assert contrast > 10, cycles.topology
 
 
+def test_cycles_camera_is_the_pinhole_model_with_any_intrinsics(blender):
+    """fx != fy and an off-centre principal point: the Cycles masks still lie on the raster's."""
+    camera = StereoCamera(320, 240, fx=250.0, fy=275.0, cx=171.3, cy=108.6, baseline=0.004)
+    raster, cycles = (
+        generate_frame(SimConfig("curved", camera, seed=4, renderer=renderer, samples=1), 0)
+        for renderer in ("raster", "cycles")
+    )
+    for view in ("left", "right"):
+        ours, theirs = getattr(cycles, f"{view}_mask"), getattr(raster, f"{view}_mask")
+        assert _within_one_pixel(ours, theirs) > 0.99 and _within_one_pixel(theirs, ours) > 0.99, view
+        sequence = getattr(cycles, f"{view}_sequence")
+        pixels = np.rint(sequence[sequence[:, 2] == 1, :2]).astype(int)
+        assert np.all(ours[pixels[:, 1], pixels[:, 0]] == 255), view
+
+
 def test_cycles_without_blender_is_a_one_line_error(monkeypatch, tmp_path, capsys):
     monkeypatch.setitem(sys.modules, "bpy", None)  # `import bpy` raises ImportError
     argv = ["--topology", "straight", "--frames", "1", "--renderer", "cycles", "--workers", "1"]
