@@ -13,29 +13,33 @@ truth is annotated by the same code in ``scene``:
 * instruments: metallic tubes (shaft and two jaws);
 * two point lights beside the optical centres (the endoscope's light guides), no ambient light
   beyond what the tissue reflects; depth of field focused on the target thread with a circle of
-  confusion of about 1 to 2 px at a third nearer or farther.
+  confusion of 1 to 2 px at a third nearer than the focus.
+
+The linear image then gets the domain's camera effects (``appearance.apply_look``: colour,
+vignetting, sensor noise, tone curve, JPEG) in ``scene``, as the raster renderer's does.
 
 Ground-truth passes. Cycles writes the object-index and depth passes from each pixel's first
 sample only, so a second render per view with one sample at the pixel centre (filter width
 0.01 px) and no depth of field gives them exactly: the owner of the pixel centre and its
-planar depth. In that render the threads' cross-sections are widened in the image plane to at
-least ``render.MIN_CORE_RADIUS_PX`` (their depth extent stays the true radius): the convention
-of the raster renderer, under which a thread thinner than a pixel still owns the pixels its
-centreline passes through. Object indices: tissue 1, instruments 2, thread k ``THREAD_INDEX + k``.
+planar depth. In that render the threads' cross-sections stand square to the line of sight and
+are widened across it to at least ``MASK_RADIUS_PX`` (their depth extent stays the true radius):
+the convention of the raster renderer, under which a thread thinner than a pixel still owns the
+pixels its centreline passes through and its front lies one radius before its axis. Object
+indices: tissue 1, instruments 2, thread k ``THREAD_INDEX + k``.
 
 Camera. Blender's camera looks down its -Z axis with +Y up; the optical frame has z forward and
 y down, so the camera object is the optical frame turned by pi about x. Focal length fx and the
 principal point (as lens shift) reproduce the rectified pinhole ``StereoCamera`` exactly; Cycles
 samples pixel (c, r) around raster point (c + 0.5, r + 0.5), where the pinhole model puts pixel
 centres on integers. Blender's non-square pixels cannot be written to EXR, so where fy != fx
-the whole scene is stretched by fy / fx along y instead (:func:`_stretch_to_square_pixels`): a square-pixel
-camera of focal length fx then sees every point where the camera of focal lengths (fx, fy)
-sees the unstretched one, at the same depth.
+the whole scene is stretched by fy / fx along y instead (:func:`_stretch_to_square_pixels`): a
+square-pixel camera of focal length fx then sees every point where the camera of focal lengths
+(fx, fy) sees the unstretched one, at the same depth.
 
 ``bpy`` (the ``--with-blender`` extra of ``ros2_ws/setup.sh``) and ``OpenEXR`` are imported when a
 frame is rendered, never by importing this module. Blender holds one global scene per process: a
-render resets it first, so frames are independent and deterministic up to the path tracer's
-fixed seed.
+render resets it first, so frames are independent; the path tracer's seed is fixed, so the same
+frame renders to the same pixels.
 """
 
 from __future__ import annotations

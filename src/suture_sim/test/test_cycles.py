@@ -63,6 +63,13 @@ def test_cycles_image_is_its_own_and_shows_the_thread(frame_pairs):
         assert contrast > 10, cycles.topology
 
 
+def test_same_seed_same_cycles_frame(frame_pairs):
+    _, crossed = frame_pairs[1]
+    again = generate_frame(SimConfig("crossed", crossed.camera, seed=23, renderer="cycles", samples=4), 0)
+    np.testing.assert_array_equal(again.left_image, crossed.left_image)
+    np.testing.assert_array_equal(again.right_mask, crossed.right_mask)
+
+
 def test_cycles_camera_is_the_pinhole_model_with_any_intrinsics(blender):
     """fx != fy and an off-centre principal point: the Cycles masks still lie on the raster's."""
     camera = StereoCamera(320, 240, fx=250.0, fy=275.0, cx=171.3, cy=108.6, baseline=0.004)
