@@ -165,14 +165,14 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
         if config.renderer == "cycles":
             from suture_sim import cycles
 
-            # The render's own draws come from a generator of their own: the ground truth and
-            # the look stay those of the raster renderer for the same seed and index.
+            # The render's own draws (lights, focus, materials) come from a stream of their own
+            # (the trailing 1): the ground truth and the look stay the raster renderer's.
             left, right = cycles.render_stereo(
                 camera,
                 scene.surface,
                 scene.tubes,
                 lighting,
-                np.random.default_rng([config.seed, index, TOPOLOGIES.index(topology), len(RENDERERS)]),
+                np.random.default_rng([config.seed, index, TOPOLOGIES.index(topology), 1]),
                 cycles.CyclesSettings(samples=config.samples),
             )
         else:
