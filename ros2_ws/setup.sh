@@ -5,7 +5,19 @@
 # under src/ into it (editable, so a `git pull` needs no reinstall).
 # A second run with nothing to do checks one fingerprint and returns in about
 # a second. Set SUTURE_PYTHON to choose the interpreter (default: python3).
+#
+# --with-blender also installs the optional Blender extra (requirements-blender.txt:
+# bpy and OpenEXR, ~375 MB) for `suture-sim --renderer cycles`; it has its own
+# fingerprint, so a second run is as fast, and a later run without the option keeps it.
 set -euo pipefail
+
+with_blender=0
+for option in "$@"; do
+  case "$option" in
+    --with-blender) with_blender=1 ;;
+    *) echo "setup: unknown option $option (known: --with-blender)" >&2; exit 2 ;;
+  esac
+done
 
 repo=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 venv="$repo/.venv"
@@ -22,8 +34,27 @@ fingerprint=$(
   } | sha256sum | cut -d' ' -f1
 )
 
+# The Blender extra, installed into an up-to-date environment.
+install_blender() {
+  local blender_stamp="$venv/.suture-setup-blender-fingerprint" blender_fingerprint
+  blender_fingerprint=$(cat "$stamp" "$repo/ros2_ws/requirements-blender.txt" | sha256sum | cut -d' ' -f1)
+  if [ -f "$blender_stamp" ] && [ "$(cat "$blender_stamp")" = "$blender_fingerprint" ]; then
+    echo "setup: the Blender extra is up to date"
+    return
+  fi
+  echo "setup: installing the Blender extra (bpy, ~375 MB)"
+  # --no-deps: see requirements-blender.txt (bpy declares numpy<2; the project pins numpy 2).
+  "$venv/bin/python" -m pip --disable-pip-version-check install --quiet --no-deps \
+    -r "$repo/ros2_ws/requirements-blender.txt" 2>&1 | grep -v "^WARNING: Location" || true
+  "$venv/bin/python" -c 'import OpenEXR; from suture_sim.cycles import import_bpy; import_bpy()' \
+    || { echo "setup: the Blender extra is incomplete, see the pip output above" >&2; exit 1; }
+  echo "$blender_fingerprint" > "$blender_stamp"
+  echo "setup: the Blender extra is installed"
+}
+
 if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$fingerprint" ]; then
   echo "setup: $venv is up to date"
+  [ "$with_blender" = 0 ] || install_blender
   exit 0
 fi
 
@@ -49,3 +80,4 @@ PYTHONWARNINGS=ignore "${pip[@]}" install --quiet --no-deps --no-build-isolation
   || { echo "setup: the environment is incomplete, see the pip output above" >&2; exit 1; }
 echo "$fingerprint" > "$stamp"
 echo "setup: done"
+[ "$with_blender" = 0 ] || install_blender

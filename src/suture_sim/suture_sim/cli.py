@@ -21,9 +21,18 @@ from pathlib import Path
 
 from suture_common.bag_io import BagError, BagWriter
 from suture_common.camera import CameraModelError, StereoCamera
+from suture_sim.cycles import DEFAULT_SAMPLES, CyclesUnavailableError
 from suture_sim.output import export_png, write_frame
 from suture_sim.parallel import generate_frames
-from suture_sim.scene import BACKGROUNDS, DOMAINS, TOPOLOGY_CHOICES, SceneError, SimConfig, SimFrame
+from suture_sim.scene import (
+    BACKGROUNDS,
+    DOMAINS,
+    RENDERERS,
+    TOPOLOGY_CHOICES,
+    SceneError,
+    SimConfig,
+    SimFrame,
+)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -78,6 +87,19 @@ def build_parser() -> argparse.ArgumentParser:
         choices=BACKGROUNDS,
         default=None,
         help="tissue, phantom or printed (default: tissue for legacy, phantom/printed for on-site)",
+    )
+    parser.add_argument(
+        "--renderer",
+        choices=RENDERERS,
+        default="raster",
+        help="raster (fast, default) or cycles (Blender Cycles, physically based; needs "
+        "`bash ros2_ws/setup.sh --with-blender`)",
+    )
+    parser.add_argument(
+        "--samples",
+        type=_positive(int),
+        default=DEFAULT_SAMPLES,
+        help=f"Cycles samples per pixel (default {DEFAULT_SAMPLES}; ignored by the raster renderer)",
     )
     parser.add_argument("--resolution", type=resolution, default=(640, 480), help="WxH (default 640x480)")
     parser.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bag")
@@ -147,6 +169,8 @@ def run(args: argparse.Namespace) -> list[SimFrame]:
         domain=args.domain,
         seed=args.seed,
         background=args.background,
+        renderer=args.renderer,
+        samples=args.samples,
     )
     indices = range(args.start_index, args.start_index + args.frames)
     frames = generate_frames(config, indices, workers=args.workers)
@@ -190,7 +214,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, BagError) as error:
         print(f"suture-sim: error: {error}", file=sys.stderr)
         return 1
-    except (SceneError, CameraModelError, ValueError) as error:
+    except (SceneError, CameraModelError, CyclesUnavailableError, ValueError) as error:
         print(f"suture-sim: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

@@ -68,6 +68,8 @@ MIXTURES = {"mixed": TOPOLOGIES, "hard": HARD_TOPOLOGIES}
 TOPOLOGY_CHOICES = (*TOPOLOGIES, *HARD_TOPOLOGIES, *MIXTURES)
 DOMAINS = ("legacy", "on-site")
 BACKGROUNDS = ("tissue", "phantom", "printed")
+#: ``raster``: the fast ray-cast renderer of ``render``; ``cycles``: Blender Cycles (``cycles``).
+RENDERERS = ("raster", "cycles")
 
 #: Thread colours, linear RGB albedo (violet and undyed polyglactin, green, blue, black, white).
 THREAD_COLOURS = {
@@ -109,7 +111,7 @@ class SceneError(RuntimeError):
 @dataclass(frozen=True)
 class SimConfig:
     """What to simulate. ``background`` None means: tissue for legacy, phantom or
-    printed (alternating) for on-site."""
+    printed (alternating) for on-site. ``samples`` is the Cycles renderer's samples per pixel."""
 
     topology: str
     camera: StereoCamera
@@ -119,8 +121,14 @@ class SimConfig:
     grasp_arc_length: float = 0.05
     frame_period_ns: int = 100_000_000
     start_ns: int = 1_700_000_000_000_000_000
+    renderer: str = "raster"
+    samples: int = 16
 
     def __post_init__(self) -> None:
+        if self.renderer not in RENDERERS:
+            raise ValueError(f"unknown renderer {self.renderer!r}; choose raster or cycles")
+        if self.samples < 1:
+            raise ValueError(f"samples must be at least 1, got {self.samples}")
         if self.topology not in TOPOLOGY_CHOICES:
             raise ValueError(
                 f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGY_CHOICES)}"
@@ -183,7 +191,8 @@ class _Scene:
 def generate_frame(config: SimConfig, index: int) -> SimFrame:
     """Draw, render and annotate frame ``index`` of ``config`` (deterministic)."""
     topology = config.topology_of(index)
-    rng = np.random.default_rng([config.seed, index, (*TOPOLOGIES, *HARD_TOPOLOGIES).index(topology)])
+    topology_key = (*TOPOLOGIES, *HARD_TOPOLOGIES).index(topology)
+    rng = np.random.default_rng([config.seed, index, topology_key])
     background = config.background_of(index)
     camera = config.camera
     for _ in range(60):
@@ -195,8 +204,22 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
             position=np.array([camera.baseline / 2, rng.uniform(-0.003, 0.003), -0.002]),
             reference_distance=float(np.median(scene.target[:, 2])) * rng.uniform(0.85, 1.15),
         )
-        left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
-        right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
+        if config.renderer == "cycles":
+            from suture_sim import cycles
+
+            # The render's own draws (lights, focus, materials) come from a stream of their own
+            # (the trailing 1): the ground truth and the look stay the raster renderer's.
+            left, right = cycles.render_stereo(
+                camera,
+                scene.surface,
+                scene.tubes,
+                lighting,
+                np.random.default_rng([config.seed, index, topology_key, 1]),
+                cycles.CyclesSettings(samples=config.samples),
+            )
+        else:
+            left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
+            right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
         frame = _annotate(config, index, topology, background, scene, left, right, rng)
         if frame is not None:
             return frame

@@ -23,18 +23,29 @@ def _read_frames(bag) -> list[dict]:
 
 @pytest.fixture(
     scope="module",
-    params=[("mixed", 640, 480), ("mixed", 1280, 1024), ("hard", 640, 480), ("hard", 1280, 1024)],
-    ids=["mixed-640x480", "mixed-1280x1024", "hard-640x480", "hard-1280x1024"],
+    params=[
+        ("mixed", 640, 480, "raster"),
+        ("mixed", 1280, 1024, "raster"),
+        ("hard", 640, 480, "raster"),
+        ("hard", 1280, 1024, "raster"),
+        ("mixed", 640, 480, "cycles"),
+    ],
+    ids=["mixed-640x480", "mixed-1280x1024", "hard-640x480", "hard-1280x1024", "cycles-640x480"],
 )
 def bag_frames(request, tmp_path_factory):
-    """Frames of every topology of a mixture (two each at 640x480, one at 1280x1024) written
-    to a bag and read back with rosbags."""
-    mixture, width, height = request.param
+    """Frames of every topology of a mixture written to a bag and read back with rosbags: two each
+    from the raster renderer at 640x480, one each otherwise. The Cycles frames take one sample per
+    pixel: their ground truth comes from a render of its own, whatever the image's samples."""
+    mixture, width, height, renderer = request.param
+    if renderer == "cycles":
+        request.getfixturevalue("blender")
     cycle = MIXTURES[mixture]
     bag = tmp_path_factory.mktemp("gt") / "bag"
-    config = SimConfig(topology=mixture, camera=StereoCamera.default(width, height), seed=11)
+    config = SimConfig(
+        topology=mixture, camera=StereoCamera.default(width, height), seed=11, renderer=renderer, samples=1
+    )
     with BagWriter(bag) as writer:
-        for index in range(2 * len(cycle) if width == 640 else len(cycle)):
+        for index in range(2 * len(cycle) if (width, renderer) == (640, "raster") else len(cycle)):
             write_frame(writer, generate_frame(config, index))
     return _read_frames(bag)
 
