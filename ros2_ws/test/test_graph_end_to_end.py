@@ -89,6 +89,12 @@ def test_the_graph_publishes_the_grasp_poses_that_suture_eval_computes(replay):
         assert np.linalg.norm(graph - np.array(frame["grasp_position"])) < 1e-4, frame["topology"]
 
 
+def _default_interrupt() -> None:
+    """SIGINT at its default in the launched shell: a test run started as a background job inherits
+    it ignored, and bash cannot trap a signal that was ignored when it started."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_stops_every_node_and_finalises_the_recording(tmp_path, ros_domain_id):
     command = [
         "bash",
@@ -99,7 +105,12 @@ def test_ctrl_c_stops_every_node_and_finalises_the_recording(tmp_path, ros_domai
         str(tmp_path / "logs"),
     ]
     launch = subprocess.Popen(
-        command, env=_env(ros_domain_id), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        command,
+        env=_env(ros_domain_id),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=_default_interrupt,
     )
     started: dict[str, int] = {}
     deadline = time.monotonic() + 30

@@ -1,13 +1,13 @@
 # SPDX-License-Identifier: Apache-2.0
-"""reconstruct() on sequences traced from pixel masks (regression of the length inflation of issue 7).
+"""reconstruct() on sequences traced from pixel masks: no length inflation from their saw-tooth.
 
 ``data/traced_frames.npz`` holds three simulated frames (``suture-sim --topology mixed
 --domain legacy --resolution 640x480 --seed 808``, frames 5, 30 and 80: straight threads
 20-35 deg off the image rows) with the sequences that ``suture_ordering.core.order_stereo``
 traced on their ground-truth masks (float32 px), the camera (width, height, fx, fy, cx, cy,
 baseline), the true centreline (every 0.2 mm) and the true grasp point. Those sequences carry
-the masks' quantisation saw-tooth; before the pairs' noise floor (``pair_noise_floor``) the
-depth followed it and the threads came out 17-37 mm too long, the grasp 6-16 mm off.
+the masks' quantisation saw-tooth; without the pairs' noise floor (``pair_noise_floor``) the
+depth follows it and the threads come out 17-37 mm too long, the grasp 6-16 mm off.
 """
 
 from __future__ import annotations
