@@ -82,7 +82,8 @@ def render_table(summary: dict, title: str = "suture-eval") -> str:
         refused = ", ".join(f"{reason} {count}" for reason, count in grasp["refused"].items()) or "none"
         consistency = summary["self_consistency"]
         lines += [
-            f"grasps produced {grasp['produced']} of {summary['frames']} frames; refused: {refused}",
+            f"grasps produced {grasp['produced']} of {summary['frames']} frames, "
+            f"{_fmt(grasp['beyond_10mm'], 0)} more than 10 mm off; refused: {refused}",
             "self-consistency (3D path reprojected onto both masks): "
             f"mean {_fmt(consistency['reprojection_mean_px'])} px, "
             f"max {_fmt(consistency['reprojection_max_px'])} px over {consistency['frames']} frames",

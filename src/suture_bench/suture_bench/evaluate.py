@@ -31,7 +31,9 @@ Bags without 3D truth (true masks only, or nothing; see ``suture_bench.frames``)
 run through every stage and scored on what they carry: segmentation where true masks
 exist, ordering where true sequences exist, the 3D errors where a true path and grasp pose
 exist. Every frame also reports whether a grasp was produced or, if not, the refusal
-(``grasp.produced``, ``grasp.refused``: 'stage: error type' -> frames), and the stereo
+(``grasp.produced``, ``grasp.refused``: 'stage: error type' -> frames; ``grasp.beyond_10mm``:
+scored grasps more than 10 mm from the true grasp point, the wrong grasps a refusal should have
+prevented), and the stereo
 self-consistency of its reconstruction (``self_consistency``: the 3D path projected onto
 the masks the 3D stage worked from, px; ``reconstruction_metrics.reprojection_to_masks``).
 Frames that could not be scored, stamps that are not frames and frames lost to a damaged
@@ -464,6 +466,7 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
                 float(np.sum(np.asarray(all_grasp) <= 0.005)) / scored_frames if scored_frames else None
             ),
             "produced": tally.produced,
+            "beyond_10mm": int(np.sum(np.asarray(all_grasp) > 0.010)) if all_grasp else None,
             "refused": dict(sorted(tally.failures.items())),
         },
         "self_consistency": {

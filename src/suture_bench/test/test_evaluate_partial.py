@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from suture_bench.evaluate import Scoreboard, StageOutputs, evaluate
@@ -124,3 +125,25 @@ def test_a_bag_without_any_ground_truth_still_reports_grasps_and_consistency(sim
     assert grasp["produced"] + sum(grasp["refused"].values()) == 3
     assert summary["self_consistency"]["frames"] == grasp["produced"]
     assert summary["latency_ms"]["segmentation"] > 0
+
+
+def test_grasps_more_than_10_mm_off_are_counted(tmp_path):
+    """The sample bag with one true grasp point moved 20 mm: that grasp is counted as a wrong one."""
+    moved = tmp_path / "moved"
+    first = None
+    with BagWriter(moved) as writer:
+        for topic, msgtype, stamp, data in read_raw(SAMPLE):
+            if topic == topics.GT_GRASP_POSE and first is None:
+                first = stamp
+                message = messages.TYPESTORE.deserialize_cdr(data, msgtype)
+                position, quaternion = messages.pose_to_arrays(message)
+                shifted = messages.pose_message(
+                    position + np.array([0.02, 0.0, 0.0]), quaternion, stamp, message.header.frame_id
+                )
+                writer.write(topic, shifted, stamp)
+                continue
+            writer.write_raw(topic, msgtype, data, stamp)
+    summary = evaluate([moved], masks="ground_truth", sequences="ground_truth")
+    assert summary["grasp"]["beyond_10mm"] == 1
+    assert summary["grasp"]["max_error_mm"] > 10.0
+    assert evaluate([SAMPLE], masks="ground_truth", sequences="ground_truth")["grasp"]["beyond_10mm"] == 0
