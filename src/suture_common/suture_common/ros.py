@@ -24,6 +24,7 @@ import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException, ParameterException
 from rclpy.executors import (
+    ConditionReachedException,
     Executor,
     ExternalShutdownException,
     ShutdownException,
@@ -34,6 +35,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future, Task
 
 from suture_common.messages import TYPESTORE, MessageConversionError, ns_from_stamp
 from suture_common.parameters import INT64_MAX, ParameterSpec, ParameterValueError
@@ -227,24 +229,37 @@ class ThreadPoolExecutor(Executor):
         super().__init__(context=context)
         self._pool = concurrent.futures.ThreadPoolExecutor(num_threads)
         self._drain_timeout_s = drain_timeout_s
-        self._running: list[concurrent.futures.Future] = []
+        self._running: list[tuple[concurrent.futures.Future, Task]] = []
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
-        """Wait up to ``timeout_sec`` for one ready callback and start it on the pool."""
+        """Wait up to ``timeout_sec`` for one ready callback and start it on the pool.
+
+        A callback that has raised since the last call raises here, as in rclpy's executors.
+        """
+        self._spin_once(timeout_sec)
+
+    def spin_once_until_future_complete(self, future: Future, timeout_sec: float | None = None) -> None:
+        """:meth:`spin_once` that also returns as soon as ``future`` is done."""
+        future.add_done_callback(lambda _: self.wake())
+        self._spin_once(timeout_sec, future.done)
+
+    def _spin_once(self, timeout_sec: float | None, condition: Callable[[], bool] = lambda: False) -> None:
         try:
-            handler, _, _ = self.wait_for_ready_callbacks(timeout_sec=timeout_sec)
-        except (ShutdownException, TimeoutException, ExternalShutdownException):
-            return
-        self._running.append(self._pool.submit(handler))
-        for future in [future for future in self._running if future.done()]:
-            self._running.remove(future)
-        if handler.done():
-            handler.result()  # a callback's exception is raised here, as rclpy's executors do
+            handler, _, _ = self.wait_for_ready_callbacks(timeout_sec, None, condition)
+        except (ShutdownException, TimeoutException, ExternalShutdownException, ConditionReachedException):
+            pass
+        else:
+            self._running.append((self._pool.submit(handler), handler))
+        finished = [entry for entry in self._running if entry[0].done()]
+        for entry in finished:
+            self._running.remove(entry)
+        for _, task in finished:
+            task.result()  # rclpy's Task keeps a callback's exception; it is raised here
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
         """Let the callbacks handed to the pool finish (bounded), then shut the executor down."""
         # before rclpy's shutdown, which destroys the guard condition that callbacks still trigger
-        concurrent.futures.wait(self._running, timeout=self._drain_timeout_s)
+        concurrent.futures.wait([future for future, _ in self._running], timeout=self._drain_timeout_s)
         self._pool.shutdown(wait=False, cancel_futures=True)
         return super().shutdown(timeout_sec)
 

@@ -101,3 +101,22 @@ def test_an_os_error_of_finish_is_one_line_and_status_one(capsys):
     )
     assert status == 1
     assert capsys.readouterr().err == "test_node: cannot write the report: disk full\n"
+
+
+class Failing(Node):
+    """A node whose timer callback raises."""
+
+    def __init__(self) -> None:
+        super().__init__("failing_test_node")
+        self.create_timer(0.01, self._tick)
+
+    def _tick(self) -> None:
+        raise RuntimeError("callback failed")
+
+
+@pytest.mark.parametrize("executor", ["single", "multi"])
+def test_a_callback_exception_ends_the_node_and_is_raised(executor):
+    extra = {} if executor == "single" else {"make_executor": lambda: ThreadPoolExecutor(num_threads=2)}
+    with pytest.raises(RuntimeError, match="callback failed"):
+        run_node(Failing, "test_node", [], **extra)
+    assert not rclpy.ok()
