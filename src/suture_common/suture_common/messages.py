@@ -170,6 +170,18 @@ def image_to_array(msg: Any, expect: str | Collection[str] | None = None) -> np.
     return rows.reshape(height, width) if channels == 1 else rows.reshape(height, width, 3)
 
 
+def image_to_rgb(msg: Any) -> np.ndarray:
+    """(H, W, 3) uint8 RGB pixels of an rgb8, bgr8 or mono8 sensor_msgs/Image.
+
+    bgr8 is reordered (a copy), mono8 repeated into three channels; rgb8 is
+    :func:`image_to_array`'s view. Raises MessageConversionError as :func:`image_to_array`.
+    """
+    array = image_to_array(msg, expect=("rgb8", "bgr8", "mono8"))
+    if array.ndim == 2:
+        return np.repeat(array[..., None], 3, axis=2)
+    return np.ascontiguousarray(array[..., ::-1]) if msg.encoding == "bgr8" else array
+
+
 def _channels(encoding: str) -> int:
     try:
         return ENCODING_CHANNELS[encoding]

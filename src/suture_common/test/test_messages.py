@@ -16,6 +16,7 @@ from suture_common.messages import (
     camera_info_message,
     image_message,
     image_to_array,
+    image_to_rgb,
     make_header,
     ns_from_stamp,
     path_message,
@@ -378,3 +379,15 @@ def test_string_round_trip():
 def test_stamps_no_output_could_carry_are_refused(sec, nanosec):
     with pytest.raises(MessageConversionError, match="header stamp out of range"):
         ns_from_stamp(SimpleNamespace(sec=sec, nanosec=nanosec))
+
+
+def test_image_to_rgb_reorders_bgr8_and_repeats_mono8():
+    blue_bgr = np.zeros((2, 3, 3), np.uint8)
+    blue_bgr[..., 0] = 255
+    rgb = image_to_rgb(image_message(blue_bgr, "bgr8", 1, "cam"))
+    assert rgb.shape == (2, 3, 3) and np.all(rgb[..., 2] == 255) and not rgb[..., :2].any()
+    grey = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    np.testing.assert_array_equal(image_to_rgb(image_message(grey, "mono8", 1, "cam")), np.dstack([grey] * 3))
+    red = np.zeros((2, 3, 3), np.uint8)
+    red[..., 0] = 255
+    np.testing.assert_array_equal(image_to_rgb(image_message(red, "rgb8", 1, "cam")), red)

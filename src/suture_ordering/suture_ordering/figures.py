@@ -104,11 +104,7 @@ def write_figures(bag: Path, out: Path, per_topology: int = 1, masks: str = "gro
         )
         if not all(topic in frame for topic in needed):
             continue
-        image = messages.image_to_array(frame[topics.LEFT_IMAGE], expect=("rgb8", "bgr8", "mono8"))
-        if image.ndim == 2:
-            image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
-        elif frame[topics.LEFT_IMAGE].encoding == "bgr8":  # type: ignore[attr-defined]
-            image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        image = messages.image_to_rgb(frame[topics.LEFT_IMAGE])
         camera = StereoCamera.from_camera_info(
             frame[topics.LEFT_CAMERA_INFO], frame[topics.RIGHT_CAMERA_INFO]
         )
