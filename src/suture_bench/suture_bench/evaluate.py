@@ -267,9 +267,12 @@ class Scoreboard:
         masks = outputs.used_masks if outputs.used_masks is not None else outputs.masks
         if masks is not None:
             consistency = reprojection_to_masks(np.asarray(outputs.path), frame.camera, masks)
-            tally.reprojection_mean.append(consistency["mean_px"])
-            tally.reprojection_max.append(consistency["max_px"])
-            record["reprojection_px"] = consistency
+            if np.isfinite(consistency["max_px"]):
+                tally.reprojection_mean.append(consistency["mean_px"])
+                tally.reprojection_max.append(consistency["max_px"])
+                record["reprojection_px"] = consistency
+            else:  # an empty mask, or the path leaves a view: no distance to measure
+                tally.unscored["self-consistency: an empty mask or a path outside a view"] += 1
         if frame.true_path is None or frame.true_grasp is None:
             tally.unscored["reconstruction: the bag has no true 3D path and grasp pose"] += 1
             return record

@@ -147,3 +147,17 @@ def test_grasps_more_than_10_mm_off_are_counted(tmp_path):
     assert summary["grasp"]["beyond_10mm"] == 1
     assert summary["grasp"]["max_error_mm"] > 10.0
     assert evaluate([SAMPLE], masks="ground_truth", sequences="ground_truth")["grasp"]["beyond_10mm"] == 0
+
+
+def test_an_empty_mask_leaves_self_consistency_finite_and_says_so():
+    """A frame whose mask is empty cannot be measured: counted, not an infinite run-wide mean."""
+    frame = next(iter(read_frames(SAMPLE, images=False, complete=False)))
+    board = Scoreboard(ordering_ran=False)
+    empty = np.zeros_like(frame.true_left_mask)
+    outputs = StageOutputs(masks=(empty, empty), path=frame.true_path, grasp=frame.true_grasp)
+    board.add(frame, outputs)
+    summary = board.summary("predicted", "ground_truth")
+    assert summary["self_consistency"]["frames"] == 0
+    assert summary["self_consistency"]["reprojection_mean_px"] is None
+    assert summary["unscored"] == {"self-consistency: an empty mask or a path outside a view": 1}
+    json.dumps(summary, allow_nan=False)
