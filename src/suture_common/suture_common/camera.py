@@ -194,6 +194,5 @@ class CameraInfoCache:
         left, right = self._messages["left"], self._messages["right"]
         key = (tuple(left.p), tuple(right.p), left.width, left.height, right.width, right.height)
         if self._camera is None or self._camera[0] != key:
-            self._camera = None
             self._camera = (key, StereoCamera.from_camera_info(left, right))
         return self._camera[1]

@@ -41,9 +41,7 @@ class Branch:
     vertices: list[np.ndarray]
     segments: list[np.ndarray] = field(default_factory=list)
     segment_bridged: list[bool] = field(default_factory=list)
-    junctions: int = 0
     widths: list[float] = field(default_factory=list)
-    heading: np.ndarray | None = None
     track: np.ndarray | None = None
     turn: float = 0.0
     clean_steps: int = 0
@@ -59,9 +57,7 @@ class Branch:
             vertices=list(self.vertices),
             segments=list(self.segments),
             segment_bridged=list(self.segment_bridged),
-            junctions=self.junctions,
             widths=list(self.widths),
-            heading=None if self.heading is None else self.heading.copy(),
             track=None if self.track is None else self.track.copy(),
             turn=self.turn,
             clean_steps=self.clean_steps,
@@ -141,8 +137,6 @@ def advance(
         cv2.polylines(branch.consumed, [pts], False, 1, context.thickness, cv2.LINE_8, LINE_SHIFT)
         if bridge:
             branch.bridges += 1
-        else:
-            branch.junctions += 1
     branch.segments.append(segment)
     branch.segment_bridged.append(bridge)
     branch.vertices.append(target)
@@ -150,7 +144,6 @@ def advance(
     clean = continuation is None and (expected is None or width <= params.wide_arc_factor * expected)
     if clean:
         branch.widths.append(width)
-    branch.heading = chord
     if continuation is not None:  # after a gap or junction: go on along the thread's tangent there
         branch.track, branch.turn, branch.clean_steps = continuation * length, 0.0, 0
     elif not clean:  # a merged cross-section (a crossing, touching threads)

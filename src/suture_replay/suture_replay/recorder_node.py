@@ -158,9 +158,7 @@ def main(args: list[str] | None = None) -> int:
         RecorderNode,
         EXECUTABLE,
         args,
-        finished=lambda node: False,
         finish=lambda node: node.close(),
-        finish_error=lambda node, exc: str(exc),
     )
 
 

@@ -415,6 +415,3 @@ def write_report(path: str | Path, report: dict[str, Any]) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(report, indent=2) + "\n")
-
-
-# --------------------------------------------------------------------------- signals
