@@ -135,13 +135,7 @@ def dataclass_parameters(
     ``default_of`` gives the parameter default of a field (e.g. a tuple as a list). A field
     without :func:`described` metadata is a TypeError: every field must say what it is.
     """
-    specs = []
-    for field in dataclasses.fields(cls):
-        if PARAMETER_METADATA not in field.metadata:
-            raise TypeError(f"{cls.__name__}.{field.name} has no parameter description (described())")
-        description, value_range = field.metadata[PARAMETER_METADATA]
-        specs.append(ParameterSpec(field.name, default_of(field), description, value_range))
-    return specs
+    return [field_parameter(cls, field.name, default=default_of(field)) for field in dataclasses.fields(cls)]
 
 
 def field_parameter(
