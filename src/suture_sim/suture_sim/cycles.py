@@ -57,7 +57,16 @@ from pathlib import Path
 import numpy as np
 
 from suture_common.camera import StereoCamera
-from suture_sim.render import INSTRUMENT, MIN_CORE_RADIUS_PX, SURFACE, Lighting, Surface, Tube, ViewRender
+from suture_sim.render import (
+    BRAID_PERIOD,
+    INSTRUMENT,
+    MIN_CORE_RADIUS_PX,
+    SURFACE,
+    Lighting,
+    Surface,
+    Tube,
+    ViewRender,
+)
 
 #: Default path-tracing samples per pixel of the image render.
 DEFAULT_SAMPLES = 16
@@ -70,8 +79,6 @@ THREAD_INDEX = 10
 MAX_BOUNCES = 4
 #: Sides of a tube's polygonal cross-section (threads and instruments).
 TUBE_SIDES = 10
-#: Length of one braid repeat along the thread, metres.
-BRAID_PERIOD = 6e-4
 #: Mirrored margin of the tissue mesh beyond the texture patch, as a fraction of its side.
 TISSUE_MARGIN = 0.125
 #: Half-width (px) of a thread in the ground-truth render: a little over the raster renderer's
@@ -269,11 +276,10 @@ def _add_tissue(bpy, blender, surface: Surface, rng: np.random.Generator) -> Non
     size = texture.size
     margin = round(TISSUE_MARGIN * size)
     cells = np.arange(-margin, size + margin)
-    height = np.pad(texture.height, margin, mode="symmetric")
     x = surface.origin[0] + (cells + 0.5) * surface.texel
     y = surface.origin[1] + (cells + 0.5) * surface.texel
     grid_x, grid_y = np.meshgrid(x, y)
-    depth = surface.depth0 + surface.slope[0] * grid_x + surface.slope[1] * grid_y - height
+    depth = surface.depth(grid_x, grid_y)  # mirrored beyond the patch, as the raster renderer sees it
     vertices = np.column_stack([grid_x.ravel(), grid_y.ravel(), depth.ravel()])
     faces = _grid_faces(len(cells), len(cells))
     # Texture row i is image row i (Blender's image rows start at v = 0): no flip.

@@ -32,6 +32,8 @@ INSTRUMENT = -2
 #: Half-width (px) under which a thin thread still owns the pixel its centreline
 #: passes through: the pixel centre is at most sqrt(2)/2 px from a line crossing it.
 MIN_CORE_RADIUS_PX = 0.71
+#: Length of one braid repeat along a thread (m).
+BRAID_PERIOD = 6e-4
 
 
 @dataclass
@@ -303,7 +305,7 @@ def _tube_fragments(
     across = np.clip(side * dist / np.maximum(r_px, 0.5), -1.0, 1.0)
     facing = np.sqrt(1.0 - across**2)
     s = arc[seg] + t * (arc[seg + 1] - arc[seg])
-    braid = 1.0 + tube.braid * np.sin(2 * np.pi * (s / 6e-4 + 0.5 * across))
+    braid = 1.0 + tube.braid * np.sin(2 * np.pi * (s / BRAID_PERIOD + 0.5 * across))
     points = axis[seg] + t[:, None] * (axis[seg + 1] - axis[seg])
     light_distance = np.linalg.norm(points - lighting.position[None, :], axis=1)
     falloff = (lighting.reference_distance / np.maximum(light_distance, 1e-3)) ** 2

@@ -58,6 +58,7 @@ import numpy as np
 from suture_common.camera import StereoCamera
 from suture_common.grasp import grasp_rotation, point_at_arc_length, rotation_to_quaternion
 from suture_sim import appearance, geometry, textures
+from suture_sim.cycles import DEFAULT_SAMPLES
 from suture_sim.render import INSTRUMENT, Lighting, Surface, Tube, ViewRender, render_view
 
 TOPOLOGIES = ("straight", "curved", "self_intersected", "crossed", "occluded")
@@ -122,7 +123,7 @@ class SimConfig:
     frame_period_ns: int = 100_000_000
     start_ns: int = 1_700_000_000_000_000_000
     renderer: str = "raster"
-    samples: int = 16
+    samples: int = DEFAULT_SAMPLES
 
     def __post_init__(self) -> None:
         if self.renderer not in RENDERERS:
