@@ -208,18 +208,18 @@ def junction_step(
         return None
     free = np.flatnonzero(consumed_flat[reader.flat(far.position)] == 0)
     points = far.position[free]
-    tangents = [reader.tangent(p, p - vertex, consumed_flat) for p in points]
     ahead = turn_angles(points - vertex, heading) < params.tau_v
     # A branch whose chord runs mostly over the traversed path leads back, not across.
     t = np.linspace(0.25, 0.75, 5)
     along = vertex + t[None, :, None] * (points - vertex)[:, None, :]
     ahead &= (consumed_flat[reader.flat(along)] != 0).sum(axis=1) <= 2
+    if int(ahead.sum()) < 2:
+        return None  # one branch ahead after all: the near nodes follow it
+    tangents = [reader.tangent(p, p - vertex, consumed_flat) for p in points]
     ours = [
         bend(vertex, tangent, p, t) if t is not None and ok else np.inf
         for p, t, ok in zip(points, tangents, ahead, strict=True)
     ]
-    if int(ahead.sum()) < 2:
-        return None  # one branch ahead after all: the near nodes follow it
     # The step to a branch is a Hermite curve; it must run through the thread, not across the
     # background to some other strand (at most 10 % of it outside the zone).
     for k in np.flatnonzero(ahead):
