@@ -311,8 +311,7 @@ class Scoreboard:
             tally.skipped[reason] += count
             tally.note(f"{bag}: {count} stamp(s) skipped as not a stereo frame ({reason})")
         if damage.damaged:
-            expected = None if damage.expected is None else damage.expected.get(topics.LEFT_CAMERA_INFO)
-            lost = None if expected is None else max(0, expected - frames)
+            lost = damage.lost(topics.LEFT_CAMERA_INFO)  # stamps read but not a frame are in skipped
             tally.damaged.append({"bag": str(bag), "error": damage.error, "frames": frames, "lost": lost})
             shown = "an unknown number (the bag has no metadata.yaml)" if lost is None else str(lost)
             tally.note(f"{damage.error}: {frames} frame(s) read, {shown} lost")
