@@ -53,6 +53,7 @@ import numpy as np
 from suture_common import messages, topics
 from suture_common.bag_io import BagWriter, read_messages
 from suture_common.camera import StereoCamera
+from suture_common.image_files import image_files
 from suture_replay.calibration import (
     Rectifier,
     StereoCalibration,
@@ -61,7 +62,6 @@ from suture_replay.calibration import (
     load_opencv_stereo,
 )
 
-IMAGE_SUFFIXES = frozenset({".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"})
 DEFAULT_START_NS = 1_700_000_000_000_000_000
 NANOSECOND_DIGITS = 16
 
@@ -83,15 +83,6 @@ class RawPair:
 def _last_number(path: Path) -> int | None:
     numbers = re.findall(r"\d+", path.stem)
     return int(numbers[-1]) if numbers else None
-
-
-def _image_files(folder: Path, what: str) -> list[Path]:
-    if not folder.is_dir():
-        raise RecordingError(f"{what} folder {folder} does not exist")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not files:
-        raise RecordingError(f"{what} folder {folder} holds no images ({', '.join(sorted(IMAGE_SUFFIXES))})")
-    return files
 
 
 def _read_image(path: Path) -> np.ndarray:
@@ -129,7 +120,7 @@ def pair_files(left: list[Path], right: list[Path]) -> list[tuple[int, Path, Pat
 
 
 def folder_pairs(left: Path, right: Path, fps: float, start_ns: int) -> Iterator[RawPair]:
-    pairs = pair_files(_image_files(left, "left"), _image_files(right, "right"))
+    pairs = pair_files(image_files(left, "left", RecordingError), image_files(right, "right", RecordingError))
     stamps_in_names = all(len(str(number)) >= NANOSECOND_DIGITS for number, _, _ in pairs) and len(pairs) > 0
     for index, (number, left_file, right_file) in enumerate(pairs):
         stamp = number if stamps_in_names else start_ns + round(index * 1e9 / fps)
@@ -251,7 +242,7 @@ def mask_files(folder: Path | None, what: str) -> dict[int, Path]:
     """Mask files by the last number in their names."""
     if folder is None:
         return {}
-    files = _image_files(folder, what)
+    files = image_files(folder, what, RecordingError)
     by_number: dict[int, Path] = {}
     for path in files:
         number = _last_number(path)

@@ -20,7 +20,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+from suture_common.image_files import IMAGE_SUFFIXES
+from suture_common.image_files import image_files as common_image_files
 
 
 class DatasetError(ValueError):
@@ -65,13 +66,7 @@ def image_files(folder: str | Path) -> list[Path]:
 
     Raises DatasetError if ``folder`` is not a folder or holds no image.
     """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise DatasetError(f"{folder} is not a folder")
-    paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not paths:
-        raise DatasetError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
-    return paths
+    return common_image_files(folder, "image", DatasetError)
 
 
 def load_folder(images_dir: str | Path, masks_dir: str | Path, limit: int | None = None) -> LabelledImages:
