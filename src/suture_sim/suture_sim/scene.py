@@ -268,13 +268,7 @@ def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.
     geometry.raise_over_crossings(lifts, base, crossings, radii, rng)
     threads = [np.column_stack([c, b - lift]) for c, b, lift in zip(planar, base, lifts, strict=True)]
 
-    target = geometry.resample_by_arc_length(threads[0])
-    if geometry.arc_length(target) > MAX_LENGTH:
-        target = target[: int(MAX_LENGTH / geometry.SAMPLE_STEP) + 1]
-    if not (target[:, 2].min() >= MIN_DEPTH and target[:, 2].max() <= MAX_DEPTH):
-        raise geometry.ShapeError("thread leaves the 50-150 mm depth range")
-    if not _inside(camera, target, BORDER_PX):
-        raise geometry.ShapeError("target leaves a view")
+    target = _target_in_view(threads[0], camera)
 
     tubes = _thread_tubes([target, *threads[1:]], radii, surface, rng)
     if topology == "occluded":
@@ -340,13 +334,7 @@ def _sample_hard_scene(
         s = np.arange(n) * geometry.SAMPLE_STEP
         dive = np.tan(np.radians(rng.uniform(20, 60))) * np.maximum(s - buried_from, 0.0)
         depth = base - lift * rests + dive
-    target = geometry.resample_by_arc_length(np.column_stack([curve, depth]))
-    if geometry.arc_length(target) > MAX_LENGTH:
-        target = target[: int(MAX_LENGTH / geometry.SAMPLE_STEP) + 1]
-    if not (target[:, 2].min() >= MIN_DEPTH and target[:, 2].max() <= MAX_DEPTH):
-        raise geometry.ShapeError("thread leaves the 50-150 mm depth range")
-    if not _inside(camera, target, BORDER_PX):
-        raise geometry.ShapeError("target leaves a view")
+    target = _target_in_view(np.column_stack([curve, depth]), camera)
     if topology == "along_rows" and _row_aligned_arc(camera, target) < ROW_STRETCH:
         raise geometry.ShapeError("the target's straight stretch is not along the image rows")
 
@@ -404,6 +392,19 @@ def _row_aligned_arc(camera: StereoCamera, target: np.ndarray) -> float:
     run_id = np.cumsum(~along)
     longest = np.bincount(run_id[along]).max() if along.any() else 0
     return float(longest * geometry.SAMPLE_STEP)
+
+
+def _target_in_view(thread: np.ndarray, camera: StereoCamera) -> np.ndarray:
+    """The target thread resampled by arc length and cut to MAX_LENGTH; ShapeError unless it stays
+    within the depth range and inside both views."""
+    target = geometry.resample_by_arc_length(thread)
+    if geometry.arc_length(target) > MAX_LENGTH:
+        target = target[: int(MAX_LENGTH / geometry.SAMPLE_STEP) + 1]
+    if not (target[:, 2].min() >= MIN_DEPTH and target[:, 2].max() <= MAX_DEPTH):
+        raise geometry.ShapeError("thread leaves the 50-150 mm depth range")
+    if not _inside(camera, target, BORDER_PX):
+        raise geometry.ShapeError("target leaves a view")
+    return target
 
 
 def contrasting_colours(albedo: np.ndarray) -> list[str]:
