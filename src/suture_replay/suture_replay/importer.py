@@ -166,10 +166,9 @@ def _decode(message: Any, msgtype: str, topic: str) -> np.ndarray:
             raise RecordingError(f"{topic}: a compressed image ({message.format}) cannot be decoded")
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     try:
-        image = messages.image_to_array(message)
+        return messages.image_to_rgb(message)
     except messages.MessageConversionError as error:
         raise RecordingError(f"{topic}: {error}") from error
-    return image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
 
 
 @dataclass
