@@ -210,13 +210,20 @@ def test_a_raw_topic_bag_with_its_camera_info_comes_back_rectified(recording, tm
                 info = messages.camera_info_message(CAMERA, view, stamp, frame_id)
                 info.k, info.d, info.r = RAW_K[view].ravel(), RAW_D[view], RECTIFYING[view].ravel()
                 writer.write(f"/endoscope/{view}/camera_info", info, stamp)
+        # a left image whose right partner was dropped by the recorder: skipped and counted
+        lonely = frames[-1].stamp_ns + 1
+        writer.write("/endoscope/left/image_raw", messages.image_message(raw, "bgr8", lonely, "left"), lonely)
     out = tmp_path / "imported"
     arguments = ["--bag", str(bag), "--out", str(out)]
     for view in VIEWS:
         arguments += [f"--{view}-topic", f"/endoscope/{view}/image_raw"]
         arguments += [f"--{view}-info-topic", f"/endoscope/{view}/camera_info"]
         arguments += [f"--{view}-masks", str(root / f"{view}_masks")]  # matched by stamp
+    wrong_topic = [a.replace("right/image_raw", "right/image_rect") for a in arguments]
+    assert main(wrong_topic) == 1
+    assert "has no messages on /endoscope/right/image_rect" in capsys.readouterr().err
     assert main(arguments) == 0, capsys.readouterr().err
+    assert "1 unpaired image(s) skipped" in capsys.readouterr().out
     (camera,) = {f.camera for f in read_frames(out, images=False, complete=False)}
     assert camera == CAMERA  # the given rectification, exactly
     worst = image_shift_on_thread(out, frames)
