@@ -21,12 +21,18 @@ thread between the cut tip and the grasp point, three terms added in quadrature:
   over the stretches seen in both views, means the views were paired wrongly or describe
   different threads there; each pixel is taken as a pixel of disparity (``Z^2 / (f B)`` mm).
 
+A point of the 3D path is seen in a view when the nearest sample of that view's sequence
+(resampled every 1 px, a jump across a hidden stretch filled with unseen samples) is a seen one.
+
 :func:`refuse_uncertain_grasp` raises :class:`~suture_reconstruction.errors.GraspNotSeenError`
 when the grasp point lies on a stretch that a view does not see (no observation supports it
 in that view; the evaluation contract counts such a refusal as a success where the true grasp
 point is hidden) and :class:`~suture_reconstruction.errors.UncertainGraspError` when the
-uncertainty exceeds ``max_grasp_uncertainty_mm``. The constants were set on simulated dev
-sets (mixed with predicted masks, the hard topologies with true and predicted masks).
+uncertainty exceeds ``max_grasp_uncertainty_mm``. The constants and the default threshold
+were set on simulated sets (mixed with predicted masks, the hard topologies with true and
+predicted masks), where the terms rank the grasps that the views disagree on; a tip hook that
+both views' sequences cut across the same way leaves no trace in the stereo pair and is not
+caught here.
 
 Units: metres for 3D points and arc lengths, pixels in the images, millimetres for the
 uncertainty.
@@ -157,10 +163,10 @@ def assess_grasp(
     """The grasp point's uncertainty, and which points of the published path are not seen.
 
     ``curve``: the reconstructed thread, ``path`` (P, 3) its published points; ``sequences``:
-    the (N, 2) or (N, 3) input sequences (third column 1 = not seen); ``resampled``: the same smoothed and resampled every 1 px, jumps
-    marked not observed (:func:`suture_reconstruction.sequences.resample`). Returns the
-    :class:`GraspUncertainty` and the (P,) bool ``path_not_seen``: True where a view does not
-    see the path point.
+    the (N, 2) or (N, 3) input sequences (third column 1 = not seen); ``resampled``: the same
+    smoothed and resampled every 1 px, jumps marked not observed
+    (:func:`suture_reconstruction.sequences.resample`). Returns the :class:`GraspUncertainty`
+    and the (P,) bool ``path_not_seen``: True where a view does not see the path point.
     """
     supports = [_support(seq, res, smoothing_window) for seq, res in zip(sequences, resampled, strict=True)]
     s = np.arange(0.0, min(curve.length, grasp_arc_length + GRASP_WINDOW_M) + 1e-12, SAMPLE_STEP_M)
@@ -213,9 +219,11 @@ def refuse_uncertain_grasp(
     """Raise GraspNotSeenError for a grasp point a view does not see (when ``refuse_not_seen``),
     UncertainGraspError when ``uncertainty.total_mm`` exceeds ``max_uncertainty_mm``."""
     if refuse_not_seen and uncertainty.grasp_not_seen:
-        views = " and ".join(f"{view} view" for view in uncertainty.grasp_not_seen)
+        views = "left and right views do" if len(uncertainty.grasp_not_seen) == 2 else "left view does"
+        if uncertainty.grasp_not_seen == ("right",):
+            views = "right view does"
         raise GraspNotSeenError(
-            f"the grasp point lies on a stretch of thread the {views} does not see (hidden, e.g. under "
+            f"the grasp point lies on a stretch of thread the {views} not see (hidden, e.g. under "
             "an instrument, or bridged by the ordering): its position there is a guess; move the "
             "occluder or the camera, or change grasp_arc_length so that the grasp point is seen",
             uncertainty,

@@ -91,7 +91,7 @@ def flagged_gap(scene, start: float, end: float) -> tuple[np.ndarray, np.ndarray
 def test_a_grasp_point_on_a_stretch_not_seen_is_refused(make_scene):
     scene = make_scene("curved", seed=3)
     left, right = flagged_gap(scene, 0.045, 0.056)
-    with pytest.raises(GraspNotSeenError, match="left view and right view does not see"):
+    with pytest.raises(GraspNotSeenError, match="left and right views do not see"):
         reconstruct(left, right, scene.camera)
     # Removed instead of flagged: a jump across the gap, the same refusal.
     with pytest.raises(GraspNotSeenError):
