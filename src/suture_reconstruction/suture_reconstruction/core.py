@@ -268,8 +268,8 @@ def reconstruct(
     left_sequence, right_sequence : (N, 2) and (M, 2) array_like of float
         The thread's ordered centreline in the left and right rectified images, pixels (u, v)
         from the cut tip, about 1 px apart, as the ordering stage publishes them ((N, 3) arrays
-        are accepted, the third column flagging points not seen, 1, as the ordering stage
-        publishes bridged points). A step longer than ``params.max_jump_px`` is
+        are accepted, their third column 1 for points not seen, bridged by the ordering stage,
+        and 0 for seen ones). A step longer than ``params.max_jump_px`` is
         taken as a jump over a hidden stretch.
     camera : suture_common.camera.StereoCamera
         The rectified pair (intrinsics, baseline in m, image size).

@@ -96,21 +96,21 @@ class GraspUncertainty:
         )
 
 
-@dataclass(frozen=True)
 class _ViewSupport:
     """One view's sequence resampled every 1 px: ``points`` (K, 2), ``seen`` (K,) bool."""
 
-    points: np.ndarray
-    seen: np.ndarray
+    def __init__(self, points: np.ndarray, seen: np.ndarray) -> None:
+        self.points, self.seen = points, seen
+        self._all = cKDTree(points)
+        self._seen = cKDTree(points[seen]) if seen.any() else None
 
     def locate(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For (Q, 2) pixels: whether each is seen (its nearest sample is a seen one), and its
         distance (px) to the seen samples (inf when there are none)."""
-        _, nearest = cKDTree(self.points).query(uv)
-        seen_points = self.points[self.seen]
-        if len(seen_points) == 0:
+        _, nearest = self._all.query(uv)
+        if self._seen is None:
             return np.zeros(len(uv), dtype=bool), np.full(len(uv), np.inf)
-        distance, _ = cKDTree(seen_points).query(uv)
+        distance, _ = self._seen.query(uv)
         return self.seen[nearest], distance
 
 
@@ -143,7 +143,7 @@ def _residual_px(uv: np.ndarray, support: _ViewSupport, to_samples: np.ndarray) 
         return to_samples
     starts, ends = points[:-1][segment_ok], points[1:][segment_ok]
     _, nearest = cKDTree(0.5 * (starts + ends)).query(uv, k=min(3, len(starts)))
-    nearest = np.atleast_2d(nearest.T).T if nearest.ndim == 1 else nearest
+    nearest = nearest.reshape(len(uv), -1)
     a, b = starts[nearest], ends[nearest]  # (Q, k, 2)
     ab = b - a
     t = np.clip(np.einsum("qkd,qkd->qk", uv[:, None] - a, ab) / np.maximum((ab * ab).sum(-1), 1e-12), 0, 1)
@@ -229,9 +229,16 @@ def refuse_uncertain_grasp(
             uncertainty,
         )
     if uncertainty.total_mm > max_uncertainty_mm:
+        terms = {
+            "conditioning_mm": "the thread runs nearly along the image rows there: turn the camera or the "
+            "thread so that it crosses them",
+            "not_seen_mm": "clear the view of the thread between the tip and the grasp point",
+            "disagreement_mm": "the two views' sequences do not describe the same thread there: check the "
+            "masks and sequences of both views",
+        }
+        largest = max(terms, key=lambda name: getattr(uncertainty, name))
         raise UncertainGraspError(
             f"grasp point uncertain by {uncertainty.total_mm:.1f} mm, more than max_grasp_uncertainty_mm "
-            f"{max_uncertainty_mm:g}: {uncertainty.describe()}; turn the camera so the thread crosses "
-            "the image rows, or clear the view of the thread before the grasp point",
+            f"{max_uncertainty_mm:g}: {uncertainty.describe()}; {terms[largest]}",
             uncertainty,
         )
