@@ -31,14 +31,16 @@ both call. Steps (paper Section II.B end and II.C):
 5. a smoothing spline through the path's vertices, re-parametrised by arc
    length (:mod:`suture_reconstruction.curve`): ``path`` every ``path_step``
    and ``length``;
-6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``).
+6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``), and its
+   uncertainty (:mod:`suture_reconstruction.uncertainty`): a grasp point a view does not see,
+   or one uncertain by more than ``max_grasp_uncertainty_mm``, is refused.
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera) and ``suture_common.camera.CameraModelError`` for an
-unusable camera.
+camera; GraspNotSeenError and UncertainGraspError for a grasp point that is not trusted)
+and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
 
 from __future__ import annotations
@@ -67,6 +69,7 @@ from suture_reconstruction.photometric import PhotometricParams, check_image_pai
 from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible, resample, smooth_sequence
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
+from suture_reconstruction.uncertainty import GraspUncertainty, assess_grasp, refuse_uncertain_grasp
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,8 @@ class ReconstructionParams:
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
-    ``grasp_arc_length`` (m from the cut tip).
+    ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
+    ``refuse_unseen_grasp`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
     """
@@ -135,6 +139,18 @@ class ReconstructionParams:
             (0.0, 1.0),
         ),
     )
+    max_grasp_uncertainty_mm: float = field(
+        default=15.0,
+        metadata=described(
+            "largest estimated uncertainty (mm) of the grasp point that is still published; a grasp "
+            "point less certain is refused (UncertainGraspError)",
+            (0.0, 1000.0),
+        ),
+    )
+    refuse_unseen_grasp: bool = field(
+        default=True,
+        metadata=described("refuse a grasp point that a view does not see (GraspNotSeenError)"),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -143,6 +159,10 @@ class ReconstructionParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
+        if not self.max_grasp_uncertainty_mm > 0:
+            raise ValueError(
+                f"max_grasp_uncertainty_mm must be positive, got {self.max_grasp_uncertainty_mm}"
+            )
         if not (self.curve_smoothing >= 0 and self.grasp_arc_length >= 0):
             raise ValueError("curve_smoothing and grasp_arc_length must not be negative")
 
@@ -198,6 +218,9 @@ class Reconstruction:
     ``shape``: Algorithm 1's result (``tau_l`` used, path vertex indices into
     ``vertices`` (V, 3), the resampled input). ``rejected``: counts of left
     samples without a vertex, by reason. ``timings_ms``: per step.
+    ``uncertainty``: the grasp point's estimated uncertainty and its parts
+    (:class:`~suture_reconstruction.uncertainty.GraspUncertainty`); ``path_not_seen`` (P,) bool:
+    the path points that a view does not see.
     """
 
     points: np.ndarray
@@ -213,6 +236,13 @@ class Reconstruction:
     rejected: dict[str, int]
     timings_ms: dict[str, float]
     image_matches: int = 0
+    uncertainty: GraspUncertainty | None = None
+    path_not_seen: np.ndarray | None = None
+
+    @property
+    def grasp_uncertainty_mm(self) -> float:
+        """The grasp point's estimated uncertainty (mm); NaN when it was not assessed."""
+        return float("nan") if self.uncertainty is None else self.uncertainty.total_mm
 
     @property
     def tau_l(self) -> float:
@@ -238,7 +268,8 @@ def reconstruct(
     left_sequence, right_sequence : (N, 2) and (M, 2) array_like of float
         The thread's ordered centreline in the left and right rectified images, pixels (u, v)
         from the cut tip, about 1 px apart, as the ordering stage publishes them ((N, 3) arrays
-        are accepted, the third column ignored). A step longer than ``params.max_jump_px`` is
+        are accepted, their third column 1 for points not seen, bridged by the ordering stage,
+        and 0 for seen ones). A step longer than ``params.max_jump_px`` is
         taken as a jump over a hidden stretch.
     camera : suture_common.camera.StereoCamera
         The rectified pair (intrinsics, baseline in m, image size).
@@ -268,6 +299,10 @@ def reconstruct(
         The reconstructed thread is shorter than ``params.grasp_arc_length``.
     ImagePairError
         ``images`` that do not fit the camera.
+    GraspNotSeenError
+        The grasp point lies on a stretch a view does not see (``params.refuse_unseen_grasp``).
+    UncertainGraspError
+        The grasp point's uncertainty exceeds ``params.max_grasp_uncertainty_mm``.
     ReconstructionError
         Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
         point (the base class of all the above; a ``ValueError``).
@@ -320,6 +355,17 @@ def reconstruct(
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
     timer.lap("curve_and_grasp")
+    uncertainty, path_not_seen = assess_grasp(
+        curve,
+        path,
+        camera,
+        (left_sequence, right_sequence),
+        (left, right),
+        params.grasp_arc_length,
+        params.smoothing_window,
+    )
+    refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
+    timer.lap("uncertainty")
     return Reconstruction(
         points=triangulated.points,
         left_uv=triangulated.left_uv,
@@ -334,6 +380,8 @@ def reconstruct(
         rejected=rejected,
         timings_ms=timer.timings(),
         image_matches=image_matches,
+        uncertainty=uncertainty,
+        path_not_seen=path_not_seen,
     )
 
 
