@@ -1,0 +1,160 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Continuing across an occluder: a gap in the mask wider than τ_O (an instrument shaft lying
+across the thread) where the thread goes on beyond with a consistent direction and curvature.
+
+Where the search finds nothing more (no admissible node up to τ_O, no way out of a loop), the
+thread's end is extrapolated: its direction t0 and curvature κ are fitted over the last
+``FIT_STEPS`` x r_s px of the path (the direction alone, straight on, over a shorter path of at
+least ``MIN_FIT_STEPS`` x r_s). The undetected mask beyond, up to ``occluder_reach_px``, is
+searched in a cone around the arcs that continue the end: between the straight line and the arc
+of curvature κ (whose chord of length d turns by κ d / 2 from the tangent; a bend may straighten
+under the occluder), widened by ``bridge_bend_max`` on either side. Each piece of mask met there
+(a connected component clear of the path traversed, nearest first) is entered at its point
+nearest to the end, moved to the middle of its cross-section, and taken only if it passes the
+checks of a bridged gap (:func:`suture_ordering.bridging.gap_exit`): the thread must *start*
+there facing the gap, turn by less than ``bridge_turn_max`` from the chord, and leave it so that
+the turns into and out of the chord differ by less than ``occluder_bend_max`` (one and two steps
+beyond; wider than ``bridge_bend_max``, since a thread hidden over tens of px may bend one way
+and then the other). A strand crossing the way fails these checks, and the search then ends as
+before: stopping is safer than a bridge onto another strand. The bridged stretch is a cubic
+Hermite curve along both tangents, flagged as not seen (:func:`suture_ordering.path.advance`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from suture_ordering.bridging import gap_exit
+from suture_ordering.context import SearchContext
+from suture_ordering.geometry import signed_angle
+from suture_ordering.nodes import Candidates
+from suture_ordering.path import Branch, thread_width
+
+#: The end's direction and curvature are fitted over this many step radii of the path.
+FIT_STEPS = 6
+#: Less thread than this many step radii before the gap is not extrapolated.
+MIN_FIT_STEPS = 1.5
+#: Largest curvature (1/px, at 640 px width) the extrapolation follows: a fit over a few tens of
+#: px on a pixel-traced centreline cannot tell tighter bends from noise.
+MAX_CURVATURE = 1.0 / 60.0
+#: Pieces of mask beyond the gap tried, nearest first.
+MAX_PIECES = 4
+
+
+def end_direction(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Unit tangent and signed curvature (1/px) at the last of ``points`` (k, 2), from a
+    quadratic in arc length fitted to them; None for fewer than 5 points or no length."""
+    if len(points) < 5:
+        return None
+    arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))))
+    if arc[-1] <= 0:
+        return None
+    s = arc - arc[-1]
+    coefficients = np.polyfit(s, points, 2)  # (3, 2): a s^2 + b s + c per coordinate
+    first, second = coefficients[1], 2 * coefficients[0]
+    speed = float(np.hypot(*first))
+    if speed <= 0:
+        return None
+    curvature = (first[0] * second[1] - first[1] * second[0]) / speed**3
+    return first / speed, float(curvature)
+
+
+def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None:
+    """The step across a wide gap beyond the end of the search (see the module docstring): the
+    one candidate, or None (the thread ends here)."""
+    params, scaled = context.params, context.scaled
+    reach = params.occluder_reach_px * scaled.scale
+    if reach <= scaled.tau_o or not branch.segments:
+        return None
+    fit_length = FIT_STEPS * scaled.step_radius
+    path = np.vstack([branch.vertices[0], *branch.segments])
+    arc_back = np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
+    count = int(np.searchsorted(arc_back, fit_length)) + 1
+    if arc_back[-1] < MIN_FIT_STEPS * scaled.step_radius:
+        return None  # too little thread seen to extrapolate
+    fitted = end_direction(path[-count - 1 :])
+    if fitted is None:
+        return None
+    tangent, curvature = fitted
+    if arc_back[-1] < fit_length:  # too short to measure a curvature: straight on
+        curvature = 0.0
+    curvature = float(np.clip(curvature, -MAX_CURVATURE / scaled.scale, MAX_CURVATURE / scaled.scale))
+    end = branch.vertices[-1]
+    width = thread_width(branch) or 1.0
+    free = _free_mask_near(context, branch, end, reach, width)
+    if free is None:
+        return None
+    labels, origin = free
+    # The thread may bend either way under the occluder (an S between its two ends).
+    across = dataclasses.replace(
+        context, params=dataclasses.replace(params, bridge_bend_max=params.occluder_bend_max)
+    )
+    rows, cols = np.nonzero(labels)
+    offset = np.column_stack((cols + origin[0], rows + origin[1])) - end
+    distance = np.hypot(offset[:, 0], offset[:, 1])
+    bearing = np.arctan2(tangent[0] * offset[:, 1] - tangent[1] * offset[:, 0], offset @ tangent)
+    # Between the straight and the constant-curvature extrapolation (a bend may straighten
+    # under the occluder), widened by bridge_bend_max.
+    curved = np.arcsin(np.clip(curvature * distance / 2, -1.0, 1.0))
+    ahead = (distance > scaled.step_radius) & (distance <= reach)
+    ahead &= bearing > np.minimum(curved, 0.0) - params.bridge_bend_max
+    ahead &= bearing < np.maximum(curved, 0.0) + params.bridge_bend_max
+    if not ahead.any():
+        return None
+    label = labels[rows[ahead], cols[ahead]]
+    order = np.argsort(distance[ahead], kind="stable")
+    _, first = np.unique(label[order], return_index=True)
+    for k in np.sort(first)[:MAX_PIECES]:
+        nearest = np.flatnonzero(ahead)[order[k]]
+        piece = labels[rows, cols] == labels[rows[nearest], cols[nearest]]
+        entry = offset[nearest] + end
+        near_entry = piece & (np.hypot(*(offset + end - entry).T) <= max(2.0, width))
+        point = (offset[near_entry] + end).mean(axis=0)
+        chord = point - end
+        length = float(np.hypot(*chord))
+        if length <= scaled.tau_o / 2:
+            continue  # a near piece the search itself refused
+        continuation = gap_exit(across, point, chord, tangent, branch.consumed)
+        if continuation is None:
+            continue
+        return Candidates(
+            point[None, :],
+            np.array([length]),
+            np.array([int(length)]),
+            np.array([abs(signed_angle(tangent, chord))]),
+            np.array([width]),
+            [continuation],
+            np.array([True]),
+            decided=0,
+        )
+    return None
+
+
+def _free_mask_near(
+    context: SearchContext, branch: Branch, end: np.ndarray, reach: float, width: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Connected pieces (int32 labels, 0 = none) of the mask within ``reach`` of ``end`` that lie
+    clear of the path traversed so far (by a thread width), and the (u, v) of the window's first
+    pixel; None when there are none."""
+    reader = context.reader
+    pad = reader.pad
+    height, width_px = reader.mask.shape
+    cu, cv = round(float(end[0])) + pad, round(float(end[1])) + pad
+    r = math.ceil(reach) + 1
+    u0, u1 = max(0, cu - r), min(width_px, cu + r + 1)
+    v0, v1 = max(0, cv - r), min(height, cv + r + 1)
+    mask = reader.mask[v0:v1, u0:u1] > 0
+    if not mask.any():
+        return None
+    clearance = max(3, math.ceil(width))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clearance + 1, 2 * clearance + 1))
+    near_path = cv2.dilate(branch.consumed[v0:v1, u0:u1], kernel) > 0
+    free = (mask & ~near_path).astype(np.uint8)
+    count, labels = cv2.connectedComponents(free, connectivity=8)
+    if count <= 1:
+        return None
+    return labels, np.array([u0 - pad, v0 - pad], dtype=np.float64)
