@@ -121,6 +121,8 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
         continuation = gap_exit(across, point, chord, tangent, branch.consumed)
         if continuation is None:
             continue
+        # The bridge leaves along the fitted tangent (the last chords' turn is a noisier one).
+        branch.track, branch.turn = tangent * scaled.step_radius, 0.0
         return Candidates(
             point[None, :],
             np.array([length]),
