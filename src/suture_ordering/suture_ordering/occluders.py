@@ -4,20 +4,24 @@ across the thread) where the thread goes on beyond with a consistent direction a
 
 Where the search finds nothing more (no admissible node up to τ_O, no way out of a loop), the
 thread's end is extrapolated: its direction t0 and curvature κ are fitted over the last
-``FIT_STEPS`` x r_s px of the path (the direction alone, straight on, over a shorter path of at
-least ``MIN_FIT_STEPS`` x r_s). The undetected mask beyond, up to ``occluder_reach_px``, is
-searched in a cone around the arcs that continue the end: between the straight line and the arc
-of curvature κ (whose chord of length d turns by κ d / 2 from the tangent; a bend may straighten
-under the occluder), widened by ``bridge_bend_max`` on either side. Each piece of mask met there
-(a connected component clear of the path traversed, nearest first) is entered at its point
-nearest to the end, moved to the middle of its cross-section, and taken only if it passes the
-checks of a bridged gap (:func:`suture_ordering.bridging.gap_exit`): the thread must *start*
-there facing the gap, turn by less than ``bridge_turn_max`` from the chord, and leave it so that
-the turns into and out of the chord differ by less than ``occluder_bend_max`` (one and two steps
-beyond; wider than ``bridge_bend_max``, since a thread hidden over tens of px may bend one way
-and then the other). A strand crossing the way fails these checks, and the search then ends as
-before: stopping is safer than a bridge onto another strand. The bridged stretch is a cubic
-Hermite curve along both tangents, flagged as not seen (:func:`suture_ordering.path.advance`).
+``FIT_STEPS`` x r_s px of the path, or over all of a shorter one (the direction alone, straight
+on, over less than half that, but at least ``MIN_FIT_STEPS`` x r_s). The undetected mask beyond,
+up to ``occluder_reach_px``, is searched in a cone around the arcs that continue the end:
+between the straight line and the arc of curvature κ (whose chord of length d turns by κ d / 2
+from the tangent; a bend may straighten under the occluder), widened by ``bridge_bend_max`` on
+either side. Each piece of mask met there (a connected component clear of the path traversed,
+nearest first) is entered at its point nearest to the end, moved to the middle of its
+cross-section, and taken only if it passes the checks of a bridged gap
+(:func:`suture_ordering.bridging.gap_exit`): the thread must *start* there facing the gap, turn
+by less than ``bridge_turn_max`` from the chord, and leave it so that the turns into and out of
+the chord differ by less than ``occluder_bend_max`` (one and two steps beyond; wider than
+``bridge_bend_max``, since a thread hidden over tens of px may bend one way and then the other).
+Such an S (a difference of ``bridge_bend_max`` or more) is taken only where its first half is
+the bend the end already had: the chord within ``S_BEND_SLACK`` of the predicted arcs. A strand
+crossing the way fails these checks, and so does one that starts beside the line of a thread
+ending straight; the search then ends as before: stopping is safer than a bridge onto another
+strand. The bridged stretch is a cubic Hermite curve along both tangents, flagged as not seen
+(:func:`suture_ordering.path.advance`).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from suture_ordering.bridging import gap_exit
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import signed_angle
 from suture_ordering.nodes import Candidates
+from suture_ordering.params import OrderingParams
 from suture_ordering.path import Branch, thread_width
 
 #: The end's direction and curvature are fitted over this many step radii of the path.
@@ -41,6 +46,8 @@ MIN_FIT_STEPS = 1.5
 #: Largest curvature (1/px, at 640 px width) the extrapolation follows: a fit over a few tens of
 #: px on a pixel-traced centreline cannot tell tighter bends from noise.
 MAX_CURVATURE = 1.0 / 60.0
+#: An S-shaped connection's chord may deviate this much (rad) from the arcs the end predicts.
+S_BEND_SLACK = math.radians(5.0)
 #: Pieces of mask beyond the gap tried, nearest first.
 MAX_PIECES = 4
 
@@ -65,7 +72,9 @@ def end_direction(points: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None:
     """The step across a wide gap beyond the end of the search (see the module docstring): the
-    one candidate, or None (the thread ends here)."""
+    one candidate, or None (the thread ends here). With a candidate, ``branch``'s track is set
+    to the fitted end tangent, along which the bridge's Hermite curve leaves (the last chords'
+    turn measures it less well)."""
     params, scaled = context.params, context.scaled
     reach = params.occluder_reach_px * scaled.scale
     if reach <= scaled.tau_o or not branch.segments:
@@ -80,7 +89,7 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
     if fitted is None:
         return None
     tangent, curvature = fitted
-    if arc_back[-1] < fit_length:  # too short to measure a curvature: straight on
+    if arc_back[-1] < fit_length / 2:  # too short to measure a curvature: straight on
         curvature = 0.0
     curvature = float(np.clip(curvature, -MAX_CURVATURE / scaled.scale, MAX_CURVATURE / scaled.scale))
     end = branch.vertices[-1]
@@ -117,11 +126,10 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
         chord = point - end
         length = float(np.hypot(*chord))
         if length <= scaled.tau_o / 2:
-            continue  # a near piece the search itself refused
+            continue  # within the search's own reach: its own end, or a gap it refused
         continuation = gap_exit(across, point, chord, tangent, branch.consumed)
-        if continuation is None:
+        if continuation is None or not _bends_as_predicted(tangent, curvature, chord, continuation, params):
             continue
-        # The bridge leaves along the fitted tangent (the last chords' turn is a noisier one).
         branch.track, branch.turn = tangent * scaled.step_radius, 0.0
         return Candidates(
             point[None, :],
@@ -134,6 +142,21 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
             decided=0,
         )
     return None
+
+
+def _bends_as_predicted(
+    tangent: np.ndarray, curvature: float, chord: np.ndarray, continuation: np.ndarray, params: OrderingParams
+) -> bool:
+    """Whether a connection that bends like an S (turns into and out of the chord differing by
+    ``bridge_bend_max`` or more) starts as the end's curvature predicts: its chord lies within
+    ``S_BEND_SLACK`` of the arcs between straight on and constant curvature. A thread ending
+    straight where another strand starts beside its line would need an S that its end does not
+    announce."""
+    into = signed_angle(tangent, chord)
+    if abs(into - signed_angle(chord, continuation)) < params.bridge_bend_max:
+        return True
+    curved = math.asin(max(-1.0, min(1.0, curvature * float(np.hypot(*chord)) / 2)))
+    return min(curved, 0.0) - S_BEND_SLACK <= into <= max(curved, 0.0) + S_BEND_SLACK
 
 
 def _free_mask_near(

@@ -114,6 +114,21 @@ def test_a_thread_ending_where_another_strand_starts_at_an_angle_is_not_joined_t
     assert np.hypot(*(result.points[-1] - end)) < 4.0
 
 
+def test_a_thread_ending_where_another_strand_starts_beside_its_line_is_not_joined_to_it():
+    truth = _curve()[:900]
+    end = truth[-1]
+    direction = (truth[-1] - truth[-20]) / np.hypot(*(truth[-1] - truth[-20]))
+    normal = np.array([-direction[1], direction[0]])
+    for side in (1, -1):
+        # Parallel to the thread's end, 90 px on and 30 px beside its line: joining it would take
+        # an S-bend that the thread's end does not announce.
+        start = end + 90 * direction + side * 30 * normal
+        other = start + np.arange(0, 200)[:, None] * direction
+        result = order_sequence(_draw(truth) | _draw(other), truth[0])
+        assert result.bridges == 0
+        assert np.hypot(*(result.points[-1] - end)) < 4.0
+
+
 def test_a_straight_continuation_beyond_the_reach_is_not_bridged():
     truth = _curve()
     mask = _shaft(_draw(truth), truth, 0.45, 200)  # 200 px hidden: beyond occluder_reach_px
