@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import cv2
 import numpy as np
@@ -94,7 +95,18 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
     curvature = float(np.clip(curvature, -MAX_CURVATURE / scaled.scale, MAX_CURVATURE / scaled.scale))
     end = branch.vertices[-1]
     width = thread_width(branch) or 1.0
-    free = _free_mask_near(context, branch, end, reach, width)
+
+    def in_cone(offset: np.ndarray) -> np.ndarray:
+        """Which (k, 2) offsets from the end lie in the cone (between the straight and the
+        constant-curvature extrapolation, widened by bridge_bend_max) within the reach."""
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        bearing = np.arctan2(tangent[0] * offset[:, 1] - tangent[1] * offset[:, 0], offset @ tangent)
+        curved = np.arcsin(np.clip(curvature * distance / 2, -1.0, 1.0))
+        inside = (distance > scaled.step_radius) & (distance <= reach)
+        inside &= bearing > np.minimum(curved, 0.0) - params.bridge_bend_max
+        return inside & (bearing < np.maximum(curved, 0.0) + params.bridge_bend_max)
+
+    free = _free_mask_near(context, branch, end, reach, width, in_cone)
     if free is None:
         return None
     labels, origin = free
@@ -105,13 +117,7 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
     rows, cols = np.nonzero(labels)
     offset = np.column_stack((cols + origin[0], rows + origin[1])) - end
     distance = np.hypot(offset[:, 0], offset[:, 1])
-    bearing = np.arctan2(tangent[0] * offset[:, 1] - tangent[1] * offset[:, 0], offset @ tangent)
-    # Between the straight and the constant-curvature extrapolation (a bend may straighten
-    # under the occluder), widened by bridge_bend_max.
-    curved = np.arcsin(np.clip(curvature * distance / 2, -1.0, 1.0))
-    ahead = (distance > scaled.step_radius) & (distance <= reach)
-    ahead &= bearing > np.minimum(curved, 0.0) - params.bridge_bend_max
-    ahead &= bearing < np.maximum(curved, 0.0) + params.bridge_bend_max
+    ahead = in_cone(offset)
     if not ahead.any():
         return None
     label = labels[rows[ahead], cols[ahead]]
@@ -160,11 +166,16 @@ def _bends_as_predicted(
 
 
 def _free_mask_near(
-    context: SearchContext, branch: Branch, end: np.ndarray, reach: float, width: float
+    context: SearchContext,
+    branch: Branch,
+    end: np.ndarray,
+    reach: float,
+    width: float,
+    in_cone: Callable[[np.ndarray], np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Connected pieces (int32 labels, 0 = none) of the mask within ``reach`` of ``end`` that lie
     clear of the path traversed so far (by a thread width), and the (u, v) of the window's first
-    pixel; None when there are none."""
+    pixel; None when no undetected mask pixel lies ``in_cone`` (offsets from ``end``)."""
     reader = context.reader
     pad = reader.pad
     height, width_px = reader.mask.shape
@@ -172,14 +183,22 @@ def _free_mask_near(
     r = math.ceil(reach) + 1
     u0, u1 = max(0, cu - r), min(width_px, cu + r + 1)
     v0, v1 = max(0, cv - r), min(height, cv + r + 1)
+    consumed = branch.consumed[v0:v1, u0:u1]
     mask = reader.mask[v0:v1, u0:u1] > 0
-    if not mask.any():
-        return None
+    origin = np.array([u0 - pad, v0 - pad], dtype=np.float64)
+    rows, cols = np.nonzero(mask & (consumed == 0))
+    ahead = in_cone(np.column_stack((cols, rows)) + origin - end)
+    if not ahead.any():
+        return None  # the usual end of a thread: nothing ahead (no need to label the window)
+    # Only the box round the pixels ahead is labelled (with room for the clearance).
     clearance = max(3, math.ceil(width))
+    margin = 2 * clearance + 1
+    r0, r1 = max(0, rows[ahead].min() - margin), rows[ahead].max() + margin + 1
+    c0, c1 = max(0, cols[ahead].min() - margin), cols[ahead].max() + margin + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clearance + 1, 2 * clearance + 1))
-    near_path = cv2.dilate(branch.consumed[v0:v1, u0:u1], kernel) > 0
-    free = (mask & ~near_path).astype(np.uint8)
+    near_path = cv2.dilate(consumed[r0:r1, c0:c1], kernel) > 0
+    free = (mask[r0:r1, c0:c1] & ~near_path).astype(np.uint8)
     count, labels = cv2.connectedComponents(free, connectivity=8)
     if count <= 1:
         return None
-    return labels, np.array([u0 - pad, v0 - pad], dtype=np.float64)
+    return labels, origin + np.array([c0, r0], dtype=np.float64)
