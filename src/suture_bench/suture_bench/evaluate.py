@@ -402,7 +402,8 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
             outputs.failure, outputs.detail = f"ordering: {type(error).__name__}", str(error)
             return outputs
         outputs.latency_ms["ordering"] = _elapsed_ms(start)
-        sequences = outputs.sequences = (ordering.left, ordering.right)
+        outputs.sequences = (ordering.left, ordering.right)
+        sequences = (ordering.left_sequence, ordering.right_sequence)  # z: not seen (bridged)
 
     images = None
     if stages.use_images and frame.left_image is not None and frame.right_image is not None:

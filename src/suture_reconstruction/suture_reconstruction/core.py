@@ -5,10 +5,10 @@
 both call. Steps (paper Section II.B end and II.C):
 
 1. validate the sequences ((N, 2) pixels from the cut tip, finite, at least
-   ``min_points``); smooth each lightly (Savitzky-Golay, ``smoothing_window``
-   samples) and resample it every 1 px of its own arc length; a step longer
-   than ``max_jump_px`` is a jump over a hidden stretch, not observed thread
-   (:mod:`suture_reconstruction.sequences`);
+   ``min_points``; (N, 3) with the not-seen flag, :mod:`suture_reconstruction.not_seen`);
+   smooth each lightly (Savitzky-Golay, ``smoothing_window`` samples) and resample it
+   every 1 px of its own arc length; a step longer than ``max_jump_px`` is a jump over a
+   hidden stretch, not observed thread (:mod:`suture_reconstruction.sequences`);
 2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
    the disparity limits of the working depth range, and disparity
    regularisation along the thread (:mod:`suture_reconstruction.pairing`);
@@ -25,7 +25,9 @@ both call. Steps (paper Section II.B end and II.C):
    the sequences' roughness (``pair_noise_floor``); followed, it is a depth
    ripple that makes the thread too long;
 3. triangulation of every left sample with a supported disparity
-   (:mod:`suture_reconstruction.triangulation`): the dense vertices ``points``;
+   (:mod:`suture_reconstruction.triangulation`): the dense vertices ``points``; the samples
+   of not-seen stretches between them at the disparity interpolated across
+   (:mod:`suture_reconstruction.not_seen`);
 4. resampling of the vertices every ``vertex_step`` along each unbroken run and
    Algorithm 1 (:mod:`suture_reconstruction.shape_graph`);
 5. a smoothing spline through the path's vertices, re-parametrised by arc
@@ -55,6 +57,7 @@ from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.parameters import described
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
 from suture_reconstruction.pairing import (
     Disparity,
     DisparitySmoothing,
@@ -66,7 +69,7 @@ from suture_reconstruction.pairing import (
     regularise_disparity,
 )
 from suture_reconstruction.photometric import PhotometricParams, check_image_pair, refine_disparity
-from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible, resample, smooth_sequence
+from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
 from suture_reconstruction.uncertainty import GraspUncertainty, assess_grasp, refuse_uncertain_grasp
@@ -220,7 +223,9 @@ class Reconstruction:
     samples without a vertex, by reason. ``timings_ms``: per step.
     ``uncertainty``: the grasp point's estimated uncertainty and its parts
     (:class:`~suture_reconstruction.uncertainty.GraspUncertainty`); ``path_not_seen`` (P,) bool:
-    the path points that a view does not see.
+    True where the path point lies on a stretch that a view does not see (flagged in the
+    sequences, its depth interpolated from the seen thread on either side,
+    :mod:`suture_reconstruction.not_seen`, or jumped over); ``points`` holds the seen vertices only.
     """
 
     points: np.ndarray
@@ -237,7 +242,7 @@ class Reconstruction:
     timings_ms: dict[str, float]
     image_matches: int = 0
     uncertainty: GraspUncertainty | None = None
-    path_not_seen: np.ndarray | None = None
+    path_not_seen: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def grasp_uncertainty_mm(self) -> float:
@@ -267,10 +272,11 @@ def reconstruct(
     ----------
     left_sequence, right_sequence : (N, 2) and (M, 2) array_like of float
         The thread's ordered centreline in the left and right rectified images, pixels (u, v)
-        from the cut tip, about 1 px apart, as the ordering stage publishes them ((N, 3) arrays
-        are accepted, their third column 1 for points not seen, bridged by the ordering stage,
-        and 0 for seen ones). A step longer than ``params.max_jump_px`` is
-        taken as a jump over a hidden stretch.
+        from the cut tip, about 1 px apart, as the ordering stage publishes them; (N, 3) arrays
+        carry the not-seen flag in the third column (1.0: interpolated across a gap in the mask,
+        never matched; its depth comes from the seen thread on either side,
+        :mod:`suture_reconstruction.not_seen`; a grasp point there is refused). A step longer
+        than ``params.max_jump_px`` is taken as a jump over a hidden stretch.
     camera : suture_common.camera.StereoCamera
         The rectified pair (intrinsics, baseline in m, image size).
     params : ReconstructionParams, optional
@@ -336,7 +342,10 @@ def reconstruct(
     left, right = _checked_sequences(left_sequence, right_sequence, camera, params.min_points)
     if images is not None:
         images = check_image_pair(images, camera.width, camera.height)
-    left, right = _observed(left, params), _observed(right, params)
+    (left, left_hidden), (right, _) = (
+        observed_samples(sequence, not_seen_flags(raw, name), params.smoothing_window, params.max_jump_px)
+        for sequence, raw, name in ((left, left_sequence, "left"), (right, right_sequence, "right"))
+    )
     d_range = (camera.disparity(params.pairing.max_depth), camera.disparity(params.pairing.min_depth))
     pairs, disparity, rejected = _stereo_disparity(left, right, d_range, params)
     timer.lap("pairing")
@@ -348,22 +357,15 @@ def reconstruct(
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
     rejected["unsupported"] = triangulated.unsupported
+    thread = with_not_seen(camera, left, left_hidden, disparity, d_range, triangulated)
     timer.lap("triangulation")
-    vertices, shape = _shape(triangulated, params)
+    vertices, shape = _shape(thread, params)
     timer.lap("optimisation")
     curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
     timer.lap("curve_and_grasp")
-    uncertainty, path_not_seen = assess_grasp(
-        curve,
-        path,
-        camera,
-        (left_sequence, right_sequence),
-        (left, right),
-        params.grasp_arc_length,
-        params.smoothing_window,
-    )
+    uncertainty, path_not_seen = assess_grasp(curve, path, camera, (left, right), params.grasp_arc_length)
     refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
     timer.lap("uncertainty")
     return Reconstruction(
@@ -411,11 +413,6 @@ def _checked_sequences(
     check_plausible(left, camera.width, camera.height, "left")
     check_plausible(right, camera.width, camera.height, "right")
     return left, right
-
-
-def _observed(sequence: np.ndarray, params: ReconstructionParams) -> Resampled:
-    """A sequence smoothed lightly and resampled every 1 px, jumps marked as not observed."""
-    return resample(smooth_sequence(sequence, params.smoothing_window), 1.0, params.max_jump_px)
 
 
 def _stereo_disparity(

@@ -5,7 +5,9 @@ Subscribes ``/suture/left/sequence`` and ``/suture/right/sequence``
 (geometry_msgs/PolygonStamped, reliable) and ``/stereo/{left,right}/camera_info``
 (sensor_msgs/CameraInfo, sensor-data QoS, which also hears reliable publishers).
 Sequences are paired by exact ``header.stamp`` (:class:`StampPairBuffer`) and
-reconstructed with the latest camera_info pair.
+reconstructed with the latest camera_info pair. A sequence point's z is the not-seen flag
+(1.0: interpolated across a gap in the mask, e.g. under an instrument; 0.0: seen), which
+:func:`reconstruct` reads (:mod:`suture_reconstruction.not_seen`).
 
 With ``use_images`` (default true) it also subscribes the rectified images
 ``/stereo/{left,right}/image_rect`` (sensor-data QoS; rgb8, bgr8 or mono8, the

@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
 from suture_reconstruction.errors import GraspNotSeenError, UncertainGraspError
-from suture_reconstruction.sequences import Resampled, smooth_sequence
+from suture_reconstruction.sequences import Resampled
 
 #: Row error (px) of a stereo pair of the traced sequences; its disparity error is this / sin(a).
 ROW_NOISE_PX = 0.03
@@ -114,26 +114,6 @@ class _ViewSupport:
         return self.seen[nearest], distance
 
 
-def not_seen_flags(sequence: np.ndarray) -> np.ndarray:
-    """(N,) bool: the points an (N, 3) sequence flags as not seen (third column 1); none for (N, 2)."""
-    array = np.asarray(sequence, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] < 3:
-        return np.zeros(len(array), dtype=bool)
-    return array[:, 2] >= 0.5
-
-
-def _support(sequence: np.ndarray, resampled: Resampled, smoothing_window: int) -> _ViewSupport:
-    """The view's resampled samples, seen where they are observed (not in a jump) and the input
-    does not flag them (the flag carried along the smoothed sequence's arc)."""
-    flags = not_seen_flags(sequence)
-    seen = resampled.observed.copy()
-    if flags.any():
-        smoothed = smooth_sequence(np.asarray(sequence, dtype=np.float64)[:, :2], smoothing_window)
-        arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(smoothed, axis=0).T))])
-        seen &= np.interp(resampled.arc, arc, flags.astype(np.float64)) < 0.5
-    return _ViewSupport(resampled.points, seen)
-
-
 def _residual_px(uv: np.ndarray, support: _ViewSupport, to_samples: np.ndarray) -> np.ndarray:
     """(Q,) distance (px) of pixels from the view's seen samples and the segments between
     consecutive ones; ``to_samples`` (Q,) is their distance to the nearest seen sample."""
@@ -155,20 +135,19 @@ def assess_grasp(
     curve: ArcLengthCurve,
     path: np.ndarray,
     camera: StereoCamera,
-    sequences: tuple[np.ndarray, np.ndarray],
     resampled: tuple[Resampled, Resampled],
     grasp_arc_length: float,
-    smoothing_window: int,
 ) -> tuple[GraspUncertainty, np.ndarray]:
     """The grasp point's uncertainty, and which points of the published path are not seen.
 
-    ``curve``: the reconstructed thread, ``path`` (P, 3) its published points; ``sequences``:
-    the (N, 2) or (N, 3) input sequences (third column 1 = not seen); ``resampled``: the same
-    smoothed and resampled every 1 px, jumps marked not observed
-    (:func:`suture_reconstruction.sequences.resample`). Returns the :class:`GraspUncertainty`
-    and the (P,) bool ``path_not_seen``: True where a view does not see the path point.
+    ``curve``: the reconstructed thread, ``path`` (P, 3) its published points; ``resampled``:
+    the left and right sequences smoothed and resampled every 1 px, observed where they are
+    neither jumped over nor flagged not seen
+    (:func:`suture_reconstruction.not_seen.observed_samples`). Returns the
+    :class:`GraspUncertainty` and the (P,) bool ``path_not_seen``: True where a view does not
+    see the path point.
     """
-    supports = [_support(seq, res, smoothing_window) for seq, res in zip(sequences, resampled, strict=True)]
+    supports = [_ViewSupport(view.points, view.observed) for view in resampled]
     s = np.arange(0.0, min(curve.length, grasp_arc_length + GRASP_WINDOW_M) + 1e-12, SAMPLE_STEP_M)
     points = curve.at(s)
     path_not_seen = np.zeros(len(path), dtype=bool)
