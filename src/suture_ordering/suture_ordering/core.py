@@ -337,7 +337,7 @@ def _order_pair(
         right=sequences[1],
         left_result=left,
         right_result=right,
-        left_sequence=flagged_sequence(sequences[0], left.points, left.bridged),
-        right_sequence=flagged_sequence(sequences[1], right.points, right.bridged),
+        left_sequence=flagged_sequence(sequences[0], left.points, left.bridged, left_prepared.clean.mask),
+        right_sequence=flagged_sequence(sequences[1], right.points, right.bridged, right_prepared.clean.mask),
         filled=(filled[0], filled[1]),
     )
