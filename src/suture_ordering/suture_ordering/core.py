@@ -23,7 +23,7 @@ import numpy as np
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
 from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError
-from suture_ordering.hooks import HookStart, hook_after_search, hook_start, stereo_tip
+from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
@@ -316,7 +316,10 @@ def _right_view(
         guess = stereo_tip(
             left_prepared.clean.mask, clean, left_tip, disparity_range, scaled.row_tolerance, scaled
         )
-        hook = None if guess is None else hook_start(clean, guess, scaled)
+        if start is None and guess is not None and not on_mask(clean, guess):
+            guess = None  # the tip is missing from this mask, not inside a stroke
+        # Without a free end on the band, any walk from the matched pixel out of the window.
+        hook = None if guess is None else hook_start(clean, guess, scaled, require_return=start is not None)
         if hook is not None:
             return _search(prepared, hook.points[0], "epipolar", started, hook)
         if start is None:

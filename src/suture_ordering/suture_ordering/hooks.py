@@ -40,7 +40,7 @@ from skimage.morphology import skeletonize
 from suture_ordering.context import SearchContext
 from suture_ordering.params import ScaledParams
 from suture_ordering.path import Branch, advance
-from suture_ordering.tip import free_ends
+from suture_ordering.tip import extend_to_end, free_ends
 
 #: At most this many branches in a hook's graph (more: not a hook; the walk is not searched).
 MAX_BRANCHES = 12
@@ -58,7 +58,7 @@ SPUR = 3.0
 #: A free end this near (px at 640 px) to the tip's pixel is the cut tip.
 NEAR = 5.0
 #: Spacing (px) of the search's vertices along the walk.
-DENSE = 2.0
+DENSE = 1.0
 #: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
 SKIPPED = 6.0
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
@@ -153,7 +153,8 @@ def _skeleton_graph(skeleton: np.ndarray, tip: np.ndarray, rim: np.ndarray) -> _
         ends_nodes: list[list[tuple[int, int]]] = []
         for end_pixel in (first, last):
             near_pixels = contact_node[contact_plain == end_pixel]
-            ends_nodes.append(list(dict(zip(node_of[near_pixels].tolist(), near_pixels.tolist())).items()))
+            by_node = dict(zip(node_of[near_pixels].tolist(), near_pixels.tolist(), strict=True))
+            ends_nodes.append(list(by_node.items()))
         if first == last and len(ends_nodes[0]) > 1:  # one pixel between two nodes
             ends_nodes = [ends_nodes[0][:1], ends_nodes[0][1:2]]
         elif first == last:
@@ -191,7 +192,8 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
     required = [
         k
         for k, b in enumerate(branches)
-        if "rim" not in kinds[k] and not ("end" in kinds[k] and b.length < spur and graph.tip not in (b.a, b.b))
+        if "rim" not in kinds[k]
+        and not ("end" in kinds[k] and b.length < spur and graph.tip not in (b.a, b.b))
     ]
     found: list[list[tuple[int, bool]]] = []
     uses = [0] * len(branches)
@@ -259,8 +261,8 @@ def hook_walk(
     this near to ``tip`` is the start. Also whether the walk comes back to a node it passed.
     """
     height, width = mask.shape
-    r = int(math.ceil(window_radius))
-    cu, cv = int(round(float(tip[0]))), int(round(float(tip[1])))
+    r = math.ceil(window_radius)
+    cu, cv = round(float(tip[0])), round(float(tip[1]))
     u0, v0 = max(0, cu - r), max(0, cv - r)
     u1, v1 = min(width, cu + r + 1), min(height, cv + r + 1)
     window = np.asarray(mask[v0:v1, u0:u1], dtype=np.uint8)
@@ -289,6 +291,17 @@ def hook_walk(
     graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
     if graph is None:
         return None
+    for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
+        for first, kind in ((True, graph.kind[branch.a]), (False, graph.kind[branch.b])):
+            if kind != "end" or branch.length < spur:
+                continue
+            end = branch.pixels[0] if first else branch.pixels[-1]
+            outer = extend_to_end(own, end.astype(np.float64), step)
+            reach = float(np.hypot(*(outer - end)))
+            if reach >= 1.0:
+                fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)
+                extra = end + fractions * (outer - end)
+                branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
     walks = _walks(graph, spur)
     if not walks:
         return None
@@ -315,24 +328,26 @@ class HookStart:
     width: float
 
 
-def hook_start(mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> HookStart | None:
+def hook_start(
+    mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams, require_return: bool = True
+) -> HookStart | None:
     """The walk through a hook at ``tip`` ((2,) (u, v), a hint or a free end) in ``mask``
     ((H, W) 0/1, the cleaned mask), or None when there is no hook there: the thread runs from
     the tip straight out of the window (the search of :mod:`suture_ordering.search` orders it),
     or the window holds no walk.
 
     A hook is a walk that comes back to a place it has passed: a free end it turns back at
-    (the bend of merged arms) or a junction it passes twice (a loop).
+    (the bend of merged arms) or a junction it passes twice (a loop). ``require_return=False``:
+    any walk out of the window is taken.
     """
     window = HOOK_WINDOW * scaled.roi_radius
     found = hook_walk(mask, tip, window, float(scaled.step_radius), SPUR * scaled.scale, NEAR * scaled.scale)
     if found is None:
         return None
     points, revisits = found
-    if not revisits:
+    if require_return and not revisits:
         return None
     tail = np.rint(points[-max(2, len(points) // 3) :]).astype(int)
-    height, width = mask.shape
     r = int(np.ceil(window)) + 2
     u0, v0 = max(0, int(tip[0]) - r), max(0, int(tip[1]) - r)
     patch = np.ascontiguousarray(mask[v0 : int(tip[1]) + r + 1, u0 : int(tip[0]) + r + 1], dtype=np.uint8)
@@ -345,19 +360,20 @@ def hook_start(mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> HookS
 
 
 def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
-    """Advance ``branch`` (at the walk's first point) along the walk: vertices every
-    ``DENSE`` px, the last ``2 r_s`` px in steps of r_s so that the search goes on with the
-    thread's track and turn."""
+    """Advance ``branch`` (at the walk's first point) along the walk: a vertex wherever the walk
+    has moved ``DENSE`` px from the last one (so the turn at a bend is kept), the last ``2 r_s``
+    px in steps of r_s so that the search goes on with the thread's track and turn."""
     points = start.points
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
-    total = along[-1]
     step = float(context.scaled.step_radius)
-    dense = np.arange(DENSE, max(DENSE, total - 2 * step), DENSE)
-    marks = np.concatenate([dense, [total - step, total]]) if total > 2 * step + DENSE else [total]
-    for mark in marks:
-        k = min(int(np.searchsorted(along, mark)), len(points) - 1)
-        if np.hypot(*(points[k] - branch.vertices[-1])) >= 1.0:
-            advance(context, branch, points[k], start.width)
+    last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
+    for point in points[1:last_steps]:
+        if math.hypot(*(point - branch.vertices[-1])) >= DENSE:
+            advance(context, branch, point, start.width)
+    for mark in (along[-1] - step, along[-1]):
+        point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
+        if math.hypot(*(point - branch.vertices[-1])) >= 1.0:
+            advance(context, branch, point, start.width)
 
 
 def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
@@ -366,18 +382,26 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     or loop of a hook the search went past."""
     r = int(np.ceil(HOOK_WINDOW * scaled.roi_radius))
     height, width = mask.shape
-    cu, cv = int(round(float(tip[0]))), int(round(float(tip[1])))
+    cu, cv = round(float(tip[0])), round(float(tip[1]))
     u0, v0 = max(0, cu - r), max(0, cv - r)
-    window = np.ascontiguousarray(mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8)
+    window = np.ascontiguousarray(
+        mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8
+    )
     _, pieces = cv2.connectedComponents(window, connectivity=8)
     on = np.argwhere(window > 0)
     if on.size == 0:
         return False
     nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
     thread = pieces == pieces[nearest[0], nearest[1]]
-    visited = np.zeros_like(window)
+    # The path visits the thread's whole cross-section: its half width plus the detection radius.
     polyline = np.rint(points - np.array([u0, v0])).astype(np.int32)
-    cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(scaled.detect_radius)) + 1)
+    on_window = (
+        (polyline >= 0).all(axis=1) & (polyline[:, 0] < window.shape[1]) & (polyline[:, 1] < window.shape[0])
+    )
+    depth = cv2.distanceTransform(window, cv2.DIST_L2, 3)
+    half = float(np.median(depth[polyline[on_window, 1], polyline[on_window, 0]])) if on_window.any() else 1.0
+    visited = np.zeros_like(window)
+    cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
     yy, xx = np.mgrid[v0 : v0 + window.shape[0], u0 : u0 + window.shape[1]]
     inside = np.hypot(xx - cu, yy - cv) <= r - scaled.step_radius
     return int((thread & (visited == 0) & inside).sum()) > SKIPPED * scaled.scale
@@ -388,12 +412,29 @@ def hook_after_search(
 ) -> HookStart | None:
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
-    tip in the stroke) or the search left the tip's neighbourhood partly unvisited
-    (:func:`skipped_near_tip`). None: no hook; the search's sequence stands."""
+    tip in the stroke), the search came back near the tip to where it had passed, or it left
+    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`; then any walk out of
+    the window is taken). None: no hook; the search's sequence stands."""
     far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
-    if not far and not skipped_near_tip(mask, points, tip, scaled):
+    skipped = skipped_near_tip(mask, points, tip, scaled)
+    if not (far or skipped or _returns_near_tip(points, tip, scaled)):
         return None
-    return hook_start(mask, hint, scaled)
+    return hook_start(mask, hint, scaled, require_return=not skipped)
+
+
+def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
+    """Whether the ordered ``points`` come back, within the hook window, to within the
+    detection radius of a point passed at least 2 Υ of arc before."""
+    window = HOOK_WINDOW * scaled.roi_radius
+    distance = np.hypot(*(points - np.asarray(tip)).T)
+    outside = np.flatnonzero(distance > window)
+    near = points[: outside[0] if outside.size else len(points)]
+    if len(near) < 2:
+        return False
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(near, axis=0).T))])
+    gaps = np.hypot(*(near[:, None, :] - near[None, :, :]).transpose(2, 0, 1))
+    apart = np.abs(along[:, None] - along[None, :]) > 2 * scaled.roi_radius
+    return bool(np.any(apart & (gaps < max(1.0, scaled.detect_radius))))
 
 
 def stereo_tip(
@@ -406,11 +447,11 @@ def stereo_tip(
 ) -> np.ndarray | None:
     """The right view's pixel of ``left_tip`` ((2,) (u, v)): the left tip shifted by the
     disparity (and row offset, within ``row_tolerance``) that lays the left mask's window
-    around it (radius 2 Υ) best onto the right mask (most pixels in common); None when no
+    around it (the hook window) best onto the right mask (most pixels in common); None when no
     shift in the range lays any pixel onto the right mask."""
     height, width = left.shape
-    r = 2 * scaled.roi_radius
-    u, v = int(round(float(left_tip[0]))), int(round(float(left_tip[1])))
+    r = math.ceil(HOOK_WINDOW * scaled.roi_radius)
+    u, v = round(float(left_tip[0])), round(float(left_tip[1]))
     tu0, tu1 = max(0, u - r), min(width, u + r + 1)
     tv0, tv1 = max(0, v - r), min(height, v + r + 1)
     d_min = int(np.floor(disparity_range[0] - row_tolerance))
@@ -429,3 +470,12 @@ def stereo_tip(
     if score[y, x] < 1.0:
         return None
     return np.asarray(left_tip, dtype=np.float64) + np.array([x + iu0 - tu0, y + iv0 - tv0], dtype=np.float64)
+
+
+def on_mask(mask: np.ndarray, point: np.ndarray, radius: float = 1.5) -> bool:
+    """Whether a pixel of ``mask`` lies within ``radius`` px of ``point`` ((2,) (u, v))."""
+    r = math.ceil(radius)
+    u, v = round(float(point[0])), round(float(point[1]))
+    rows, cols = np.nonzero(mask[max(0, v - r) : v + r + 1, max(0, u - r) : u + r + 1])
+    offsets = np.hypot(cols + max(0, u - r) - point[0], rows + max(0, v - r) - point[1])
+    return bool(np.any(offsets <= radius))
