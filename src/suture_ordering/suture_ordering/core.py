@@ -9,7 +9,8 @@ Shapes and units: masks are (H, W) uint8 (0/255) or bool; pixels are (u, v) =
 Pipeline per view: :func:`suture_ordering.cleaning.clean_mask` (holes, specks),
 cut tip (:mod:`suture_ordering.tip`), then the search of the paper's Section II.B
 (:mod:`suture_ordering.search`). The right view's tip follows from the left one
-(same row, disparity in the range of ``min_depth_m``..``max_depth_m``).
+(same row, disparity in the range of ``min_depth_m``..``max_depth_m``). A cut end that curls
+into a hook or hairpin starts with a walk through the hook (:mod:`suture_ordering.hooks`).
 """
 
 from __future__ import annotations
@@ -147,7 +148,9 @@ def order_sequence(
         Every thread pixel of the view.
     tip : (2,) float (u, v) or None
         A pixel near the cut tip (within ``params.tip_radius_px``); the search starts at the
-        free end nearest to it. None: the automatic rule of :mod:`suture_ordering.tip`.
+        free end nearest to it. A cut tip inside a hook or hairpin (no free end there, or the
+        nearest one is the hook's bend) starts with a walk through the hook from the pixel
+        (:mod:`suture_ordering.hooks`). None: the automatic rule of :mod:`suture_ordering.tip`.
     params : OrderingParams, optional
     view : str, optional
         'left' or 'right', only used to prefix error messages.
