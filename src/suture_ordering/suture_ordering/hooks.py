@@ -424,9 +424,9 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     half = float(np.median(depth[polyline[on_window, 1], polyline[on_window, 0]])) if on_window.any() else 1.0
     visited = np.zeros_like(window)
     cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
-    yy, xx = np.mgrid[v0 : v0 + window.shape[0], u0 : u0 + window.shape[1]]
-    inside = np.hypot(xx - cu, yy - cv) <= r - scaled.step_radius
-    return int((thread & (visited == 0) & inside).sum()) > SKIPPED * scaled.scale
+    inside = np.zeros_like(window)
+    cv2.circle(inside, (cu - u0, cv - v0), r - scaled.step_radius, 1, cv2.FILLED)
+    return int((thread & (visited == 0) & (inside > 0)).sum()) > SKIPPED * scaled.scale
 
 
 def hook_after_search(
