@@ -16,13 +16,12 @@ the tip and the window's rim. A walk starts at the tip (or at a free end within 
 it), ends on the rim, passes every branch of the hook (each at most twice; a branch shorter
 than ``SPUR`` px to a free end is a spur of the thinning and may be left out), turns back only
 at free ends (at the mask's end, past the skeleton's), and goes on at a junction through any
-branch. Of all such walks the one that turns least in all wins, then the shortest: the total
-curvature of the walk at the scale of ``step_radius`` (the angle between the chords that many
-px before and after each point, the U-turns at free ends left out, which every walk makes),
-where a kink at a junction counts by its angle; so a crossing is crossed straight and a loop
-is gone round the way the tip arm enters it. The search then
-starts from the walk's end with the walk as its path so far (:func:`follow`), so it neither
-goes back into the hook nor loses the thread's track.
+branch. Of all such walks the one that turns least where it passes a junction or the tip
+wins, then the shortest: each turn is the angle between the chords ``step_radius`` px along
+the walk before and after the pass, so a crossing is crossed straight and a loop is gone round
+the way the tip arm enters it. The search then starts from the walk's end with the walk as its
+path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
+track.
 
 When (:func:`hook_start`, :func:`hook_after_search`): a hint with no free end within the tip
 radius; or, after the search from the free end nearest to the hint, when that end lies farther
@@ -238,37 +237,28 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
 
 
 def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
-    """The total turn (rad) of ``walk`` away from the free ends it turns back at, and its pixels.
-
-    The turn is the angle between the chords ``reach`` px before and after each point, summed
-    over points about a pixel apart and divided by ``reach``: the total curvature of the walk at
-    that scale, where a kink at a junction counts by its angle."""
-    pieces, ends = [], []
+    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
+    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
+    pieces, passes = [], []
     count = 0
-    for k, rev in walk:
+    for position, (k, rev) in enumerate(walk):
         pixels = graph.branches[k].pixels
         pixels = pixels[::-1] if rev else pixels
         if pieces and np.array_equal(pieces[-1][-1], pixels[0]):
             pixels = pixels[1:]
+        if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
+            passes.append(count - 1)
         pieces.append(pixels)
         count += len(pixels)
-        if graph.kind[graph.branches[k].a if rev else graph.branches[k].b] == "end":
-            ends.append(count - 1)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    inner = np.flatnonzero((along >= reach) & (along <= along[-1] - reach))
-    if inner.size == 0:
-        return 0.0, path
-    before = path[inner] - path[np.searchsorted(along, along[inner] - reach)]
-    after = path[np.minimum(np.searchsorted(along, along[inner] + reach), len(path) - 1)] - path[inner]
+    at = along[passes]
+    before = path[passes] - path[np.searchsorted(along, np.maximum(at - reach, 0.0))]
+    after = path[np.minimum(np.searchsorted(along, at + reach), len(path) - 1)] - path[passes]
     norms = np.hypot(*before.T) * np.hypot(*after.T)
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
     turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
-    if ends:  # the U-turns at free ends are common to every walk
-        near_end = np.min(np.abs(along[inner][:, None] - along[ends][None, :]), axis=1) < reach
-        turns = np.where(near_end, 0.0, turns)
-    spacing = np.gradient(along)[inner]
-    return float((turns * spacing).sum() / reach), path
+    return float(turns.sum()), path
 
 
 def hook_walk(
