@@ -20,6 +20,7 @@ ambiguous is described in the module that makes it (and tested in ``test/test_se
 * :mod:`suture_ordering.occluders`: wider gaps, where an instrument lies across the thread;
 * :mod:`suture_ordering.junctions`: crossings, the thread's own loops, touching threads;
 * :mod:`suture_ordering.loops`: leaving a loop across the first pass;
+* :mod:`suture_ordering.hooks`: the start through a hook at the cut tip;
 * :mod:`suture_ordering.ending`: termination and the free end;
 * :mod:`suture_ordering.tuning`: Eq. (5) over the grid of Eq. (7);
 * :mod:`suture_ordering.geometry`: angles, bends and the Hermite curve of a smooth step.
@@ -45,6 +46,7 @@ import numpy as np
 from suture_ordering.cleaning import CleanMask
 from suture_ordering.context import SearchContext
 from suture_ordering.ending import append_tail, end_status
+from suture_ordering.hooks import HookStart, follow
 from suture_ordering.loops import across_own_path
 from suture_ordering.nodes import Candidates, MaskReader
 from suture_ordering.occluders import across_occluder
@@ -94,13 +96,15 @@ class Searcher:
         )
         self.consumed0 = np.zeros_like(clean.padded)
 
-    def run(self, tip: np.ndarray) -> SearchResult:
-        """Order the thread from ``tip`` ((2,) float (u, v), a free end on the mask)."""
+    def run(self, tip: np.ndarray, hook: HookStart | None = None) -> SearchResult:
+        """Order the thread from ``tip`` ((2,) float (u, v), a free end on the mask), or along
+        ``hook`` (a walk through a hook from the tip, :mod:`suture_ordering.hooks`) and on."""
         context = self.context
         grid = context.tuning.grid
-        root = Branch(
-            rows=np.arange(len(grid)), consumed=self.consumed0.copy(), vertices=[np.asarray(tip, float)]
-        )
+        start = np.asarray(tip, float) if hook is None else hook.points[0]
+        root = Branch(rows=np.arange(len(grid)), consumed=self.consumed0.copy(), vertices=[start])
+        if hook is not None:
+            follow(context, root, hook)
         pending = [root]
         finished: list[Branch] = []
         forks = 0
