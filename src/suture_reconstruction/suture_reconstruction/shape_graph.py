@@ -16,7 +16,8 @@ Dijkstra's shortest path from the first to the last vertex:
   where the formula is 0/0) gets the largest value a single neighbour could
   give: P_1^t = S_f * log(Upsilon_3 + nu_1).
 * **Edge penalties**: P_1^(i<->t) = P_1^i * P_1^t (Eq. 10) and the order
-  penalty P_2^(i<->t) = 1 + exp(|i - t| / 20 - 2) (Eq. 11), so the path may
+  penalty P_2^(i<->t) = 1 + exp(|i - t| / 20 - 2) (Eq. 11; its 20 is
+  ``order_scale``, below), so the path may
   skip a few vertices to remove zig-zags but never jumps between strands that
   are far apart along the thread (the short cut across a self-crossing).
   W^(i<->t) = P_1^(i<->t) * P_2^(i<->t); W's diagonal is 1.
@@ -33,16 +34,18 @@ Unit choices (the paper gives none):
   cost (all neighbours exactly on top of a vertex) is floored at 1e-12.
 * The indices i, t in Eq. 11 are positions in the vertex sequence given here.
   The reconstruction resamples its vertices every ``vertex_step`` (0.1 mm by
-  default) before this stage, so |i - t| = 20 means 2 mm of thread whatever
-  the camera resolution or depth. This is what keeps Dijkstra off the short cut
-  across a self-crossing: the reconstructed strands there may touch (they are
-  0.3-0.7 mm apart in truth, less than the depth error), and the density
-  penalty makes the crossing cheaper, so the order penalty must outweigh the
-  whole loop: for a 6 mm radius loop (38 mm, 380 vertices) an edge across it
-  costs e^17 ~ 2.4e7 times its length, against ~1.1 per unit length along the
-  thread. (With 1 px per vertex, ~0.2 mm at 100 mm depth, the same loop has
-  190 vertices and the short cut is taken as soon as two of its vertices come
-  within ~0.2 mm of each other.)
+  default) before this stage, so an index difference is a length along the
+  thread whatever the camera resolution or depth. The order penalty is what
+  keeps Dijkstra on the thread where two stretches of it touch in 3D: the
+  strands of a self-crossing (0.3-0.7 mm apart in truth, less than the depth
+  error) and the two arms of a hook or hairpin at the cut end (touching along
+  1-10 mm), where the density penalty even makes the short cut cheaper. The
+  paper's 20 in Eq. 11 is therefore ``order_scale`` = 5 vertices (0.5 mm):
+  skipping 1 mm of a zig-zag costs twice its length, and the short cut between
+  the two arms of a 2 mm hairpin (an index difference of 40) costs
+  1 + e^6 ~ 400 times its length, more than walking round the bend. A scale
+  of 20 vertices (2 mm) would price it at 2 times its 0.3 mm, and Dijkstra
+  would take it, moving the grasp point by twice the hook's length.
 * tau_L starts at 1 mm (10 vertex steps: consecutive vertices are always
   joined, and a hop may skip a zig-zag of up to 1 mm); it only grows where the
   vertex chain has a gap (a stretch without stereo pairs).
@@ -89,7 +92,8 @@ class ShapeGraphParams:
     step (the paper's 0.5, read as 0.5 mm); ``upsilon3``: radius of the density
     sphere Upsilon_3 (1 mm); ``sigma1``: steepness of the count term (10 neighbours);
     ``scale``: S_f; ``nu1``: nu_1 (1 mm); ``order_scale`` and ``order_offset``:
-    the 20 and 2 of Eq. 11; ``max_tau_l``: give up beyond this limit (m).
+    Eq. 11's divisor, in vertices (the paper's 20; see the module docstring), and its 2;
+    ``max_tau_l``: give up beyond this limit (m).
     """
 
     tau_l: float = field(
@@ -128,7 +132,7 @@ class ShapeGraphParams:
             (0.0, 0.1),
         ),
     )
-    order_scale: float = 20.0
+    order_scale: float = 5.0
     order_offset: float = 2.0
     max_tau_l: float = 0.1
 
@@ -173,7 +177,7 @@ def vertex_penalties(vertices_mm: np.ndarray, params: ShapeGraphParams) -> np.nd
 
 
 def order_penalty(i: np.ndarray, t: np.ndarray, params: ShapeGraphParams) -> np.ndarray:
-    """P_2 of Eq. 11: 1 + exp(|i - t| / 20 - 2)."""
+    """P_2 of Eq. 11: 1 + exp(|i - t| / order_scale - order_offset)."""
     return 1.0 + np.exp(np.abs(i - t) / params.order_scale - params.order_offset)
 
 

@@ -41,7 +41,8 @@ def dense_algorithm_1(vertices: np.ndarray, params: ShapeGraphParams) -> tuple[l
     for i in range(n):
         for t in range(n):
             if i != t:
-                weights[i, t] = p1[i] * p1[t] * (1 + np.exp(abs(i - t) / 20 - 2))  # Eq. 10, 11, 12
+                order = abs(i - t) / params.order_scale - params.order_offset  # Eq. 11: / 20 - 2
+                weights[i, t] = p1[i] * p1[t] * (1 + np.exp(order))  # Eq. 10, 11, 12
     tau = params.tau_l * 1000.0
     while True:
         lengths = np.where(distance <= tau, distance, np.inf)  # D_G, Eq. 8
@@ -111,7 +112,7 @@ def test_vertex_penalties_follow_eq_9():
     expected0 = 2.0 / 2 * np.exp(-2 / 10) * (np.log(0.4 + 1) + np.log(1.0 + 1))
     assert p1[0] == pytest.approx(expected0)
     assert p1[3] == pytest.approx(2.0 * np.log(1.0 + 1.0))
-    assert order_penalty(np.array(0), np.array(40), params) == pytest.approx(1 + np.exp(0.0))
+    assert order_penalty(np.array(0), np.array(40), params) == pytest.approx(1 + np.exp(40 / 5 - 2))
 
 
 def loop_with_close_strands(gap: float, step: float = 1e-4) -> tuple[np.ndarray, int, int]:
@@ -156,6 +157,37 @@ def test_short_cut_would_be_taken_without_the_order_penalty():
     flat = ShapeGraphParams(tau_l=0.001, order_scale=1e9, order_offset=0.0)
     result = optimise_shape(vertices, flat)
     assert np.diff(result.indices).max() > 100
+
+
+def hairpin_at_the_tip(arm: float, gap: float = 3e-4, step: float = 1e-4) -> np.ndarray:
+    """A cut end that runs ``arm`` m, bends back round a half circle of diameter ``gap`` m (the
+    two arms touching: a hairpin) and goes on past the tip for 60 mm, every ``step`` m."""
+    out = np.arange(0.0, arm, step)
+    bend = np.linspace(0.0, np.pi, max(3, int(np.pi * gap / 2 / step)))
+    back = np.arange(0.0, arm + 0.06, step)
+    xy = np.vstack(
+        [
+            np.column_stack([-out, np.zeros_like(out)]),
+            np.column_stack([-arm - gap / 2 * np.sin(bend), gap / 2 * (1 - np.cos(bend))]),
+            np.column_stack([-arm + back, np.full_like(back, gap)]),
+        ]
+    )
+    return np.column_stack([xy, np.full(len(xy), 0.1)])
+
+
+@pytest.mark.parametrize("arm", [1e-3, 3e-3, 8e-3])
+def test_dijkstra_goes_round_a_hairpin_at_the_tip(arm):
+    """The arms of a hook at the cut end touch for its whole length; the path goes round the
+    bend instead of across, keeping the arc length from the tip (where the grasp point is) up to
+    the bend's own rounding: within 1 mm of the bend, crossing between the arms is cheaper than
+    the half circle, whatever the arms' length."""
+    rng = np.random.default_rng(5)
+    vertices = hairpin_at_the_tip(arm) + rng.normal(0.0, 3e-5, (1, 3))
+    result = optimise_shape(vertices)
+    thread = np.linalg.norm(np.diff(vertices, axis=0), axis=1).sum()
+    assert thread - 1.5e-3 < result.length <= thread
+    across = ShapeGraphParams(order_scale=20.0)  # a gentler order penalty cuts across
+    assert optimise_shape(vertices, across).length < thread - arm
 
 
 def test_removes_zig_zags_and_keeps_the_ends():
