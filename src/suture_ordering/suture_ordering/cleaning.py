@@ -33,15 +33,13 @@ class CleanMask:
     """A cleaned mask and the padded arrays the search reads.
 
     ``mask``: (H, W) uint8, 1 on the thread. ``padded`` and ``zone``: (H + 2 pad, W + 2 pad)
-    uint8, the mask and the mask dilated by the zone margin, 0 in the padding; ``sampled``:
-    ``padded`` as float32 for bilinear sampling. Pixel (u, v) of the image is
-    ``padded[v + pad, u + pad]``.
+    uint8, the mask and the mask dilated by the zone margin, 0 in the padding. Pixel (u, v)
+    of the image is ``padded[v + pad, u + pad]``.
     """
 
     mask: np.ndarray
     padded: np.ndarray
     zone: np.ndarray
-    sampled: np.ndarray
     pad: int
 
     @property
@@ -82,7 +80,9 @@ def clean_mask(
     ``pad`` is the padding in pixels (at least the farthest the search looks from a mask
     pixel). Raises InvalidInputError or EmptyMaskError (also when only specks remain).
     """
-    binary = as_binary_mask(mask, view).copy()
+    binary = as_binary_mask(mask, view)
+    if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
+        binary = binary.copy()
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is not None:
         parents = hierarchy[0][:, 3]
@@ -108,6 +108,5 @@ def clean_mask(
         mask=binary,
         padded=padded,
         zone=cv2.copyMakeBorder(zone, pad, pad, pad, pad, border, value=0),
-        sampled=padded.astype(np.float32),
         pad=pad,
     )
