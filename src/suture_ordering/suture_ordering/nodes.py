@@ -143,7 +143,7 @@ class MaskReader:
     def __init__(self, clean: CleanMask, wide_arc_factor: float, step_radius: int) -> None:
         self.image_shape = clean.shape
         self.pad = clean.pad
-        self.padded_width = clean.padded.shape[1]
+        self.padded_height, self.padded_width = clean.padded.shape
         self.mask = clean.padded
         self.zone_flat = clean.zone.reshape(-1)
         self.wide_arc_factor = wide_arc_factor
@@ -174,32 +174,40 @@ class MaskReader:
         # Read from the emptiest sample on, so that no run wraps round the end.
         rolled = np.concatenate((values[k0:], values[:k0]))
         inside = rolled > 0.5
-        edges = (inside[1:] != inside[:-1]).nonzero()[0]
-        if edges.size == 0:
+        edges = (inside[1:] != inside[:-1]).nonzero()[0].tolist()
+        if not edges:
             return None
-        edges += 1
         if inside[-1]:  # a run still open at the end closes on the last sample
-            edges = np.append(edges, n - 1)
-        lo, hi = edges[0::2] - 1, edges[1::2]  # with the partial edge samples
+            edges.append(n - 2)
         weight = rolled.cumsum()
         moment = (rolled * circle.index).cumsum()
-        first = rolled[lo]
-        mass = weight[hi] - weight[lo] + first
-        centre = (moment[hi] - moment[lo] + first * lo) / mass + k0
-        widths = mass * circle.spacing
-        if width is not None:
-            wide = widths > self.wide_arc_factor * width
-            if wide.any():
-                half = (mass[wide] - width / circle.spacing) / 2
-                centre = np.concatenate((centre[~wide], centre[wide] - half, centre[wide] + half))
-                widths = np.concatenate((widths[~wide], widths[wide], widths[wide]))
-        angle = centre * circle.angle_step
+        # Each run (a few per circle) on numpy scalars: float32 where the arrays are float32.
+        centres: list[float] = []
+        widths: list[np.float32] = []
+        split: list[tuple[float, np.float32, np.float32]] = []
+        for start, end in zip(edges[0::2], edges[1::2], strict=True):
+            lo, hi = start, end + 1  # with the partial edge samples
+            first = rolled[lo]
+            mass = weight[hi] - weight[lo] + first
+            middle = (float(moment[hi]) - float(moment[lo]) + float(first) * lo) / float(mass) + k0
+            arc = mass * circle.spacing
+            if width is not None and arc > self.wide_arc_factor * width:
+                split.append((middle, arc, (mass - width / circle.spacing) / 2))
+            else:
+                centres.append(middle)
+                widths.append(arc)
+        if split:  # one node per edge, half a width inside it
+            centres += [middle - float(half) for middle, _, half in split]
+            centres += [middle + float(half) for middle, _, half in split]
+            widths += [arc for _, arc, _ in split] * 2
+        angle = np.array(centres) * circle.angle_step
         position = np.empty((len(angle), 2))
         position[:, 0] = np.cos(angle)
         position[:, 1] = np.sin(angle)
         position *= r
         position += vertex
-        return Nodes(position, widths, r)
+        widths_array = np.array(widths, dtype=np.float32)
+        return Nodes(position, widths_array, r)
 
     def _bilinear(self, where: np.ndarray, centre: np.ndarray, reach: int) -> np.ndarray:
         """(n,) the mask sampled bilinearly (cv2.remap) at ``where``, (n, 1, 2) float32 points of
@@ -211,8 +219,7 @@ class MaskReader:
         """
         u0, v0 = int(centre[0]) - reach - 2, int(centre[1]) - reach - 2
         size = 2 * reach + 5
-        height, width = self.mask.shape
-        if min(u0, v0) < 0 or u0 + size > width or v0 + size > height:
+        if min(u0, v0) < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
             # Beyond the padding (the search stays within it): cv2.remap's own border handling.
             return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
         window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
