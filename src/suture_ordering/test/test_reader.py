@@ -85,3 +85,16 @@ def test_the_tuning_is_built_once_per_parameters_and_cannot_be_changed():
     assert np.array_equal(tuning.grid, parameter_grid(params))
     with pytest.raises(ValueError):
         tuning.grid[0, 0] = 1.0
+
+
+def test_the_padded_arrays_hold_the_mask_and_its_zone_with_zeros_around():
+    mask = np.zeros((H, W), np.uint8)
+    cv2.line(mask, (0, 100), (639, 300), 255, 3)  # reaches the image's edges
+    clean = clean_mask(mask, ScaledParams.from_params(OrderingParams(), W), 1, 30)
+    inner = (slice(30, 30 + H), slice(30, 30 + W))
+    assert clean.padded.shape == clean.zone.shape == (H + 60, W + 60)
+    assert np.array_equal(clean.padded[inner], (mask > 0).astype(np.uint8))
+    expected_zone = cv2.dilate((mask > 0).astype(np.uint8), np.ones((3, 3), np.uint8))
+    assert np.array_equal(clean.zone[inner], expected_zone)
+    for array in (clean.padded, clean.zone):  # nothing in the padding, not even beside the edge
+        assert array.sum() == array[inner].sum()
