@@ -74,16 +74,21 @@ def render_table(summary: dict, title: str = "suture-eval") -> str:
         f"{_fmt(grasp['median_error_mm']):>9s} {_fmt(grasp['max_error_mm']):>9s} {'':>11s} "
         f"{_fmt(grasp['within_5mm'], 1, 100, '%'):>7s}",
         "errors in mm; mean err: per-frame mean path-to-centreline distance; max err: any path point; "
-        "<= 5 mm: share of all frames (no grasp point = miss)",
+        "<= 5 mm: share of all frames (no grasp point = miss; a true grasp point hidden in a view: "
+        "refused as not seen = success, grasped = miss)",
         PAPER_NOTE,
         "",
     ]
     if "produced" in grasp:
         refused = ", ".join(f"{reason} {count}" for reason, count in grasp["refused"].items()) or "none"
+        hidden = grasp["hidden"]
         consistency = summary["self_consistency"]
         lines += [
             f"grasps produced {grasp['produced']} of {summary['frames']} frames, "
             f"{_fmt(grasp['beyond_10mm'], 0)} more than 10 mm off; refused: {refused}",
+            f"true grasp point hidden in {hidden['hidden']} frames: refused as not seen "
+            f"{hidden['refused_not_seen']} (successes), grasped {hidden['grasped']} (misses), "
+            f"refused otherwise {hidden['refused_otherwise']}",
             "self-consistency (3D path reprojected onto both masks): "
             f"mean {_fmt(consistency['reprojection_mean_px'])} px, "
             f"max {_fmt(consistency['reprojection_max_px'])} px over {consistency['frames']} frames",

@@ -24,8 +24,11 @@ error is the distance from each reconstructed path point to the true 3D
 centreline (mean over frames of the per-frame mean, max over frames of the
 per-frame max); grasp error is the 3D distance between predicted and true grasp
 points; ``within_5mm`` is the share of *all* frames whose grasp point is within 5 mm
-(a frame without a grasp point is a miss). Latencies are wall-clock milliseconds per
-stereo frame (``latency_ms`` medians, ``latency_p95_ms`` 95th percentiles).
+(a frame without a grasp point is a miss), except where the true grasp point is hidden:
+a frame whose true grasp point is hidden in either view (the true sequences' visibility is 0 at
+it, see :func:`true_grasp_hidden`) is a success when the 3D stage refuses it as not seen
+(``GraspNotSeenError``) and a miss when it grasps there (``grasp.hidden``). Latencies are
+wall-clock milliseconds per stereo frame (``latency_ms`` medians, ``latency_p95_ms`` 95th percentiles).
 
 Bags without 3D truth (true masks only, or nothing; see ``suture_bench.frames``) are
 run through every stage and scored on what they carry: segmentation where true masks
@@ -33,7 +36,8 @@ exist, ordering where true sequences exist, the 3D errors where a true path and 
 exist. Every frame also reports whether a grasp was produced or, if not, the refusal
 (``grasp.produced``, ``grasp.refused``: 'stage: error type' -> frames; ``grasp.beyond_10mm``:
 scored grasps more than 10 mm from the true grasp point, the wrong grasps a refusal should have
-prevented), and the stereo
+prevented; ``grasp.hidden``: frames whose true grasp point is hidden, refused as not seen or
+grasped), and the stereo
 self-consistency of its reconstruction (``self_consistency``: the 3D path projected onto
 the masks the 3D stage worked from, px; ``reconstruction_metrics.reprojection_to_masks``).
 Frames that could not be scored, stamps that are not frames and frames lost to a damaged
@@ -65,6 +69,10 @@ from suture_common.bag_io import BagDamage, BagError
 from suture_segmentation.metrics import CentrelineCounts, centreline_counts
 
 SOURCES = ("predicted", "ground_truth")
+WITHIN = 0.005
+"""A grasp point within this distance (m) of the true one is a success."""
+NOT_SEEN_REFUSAL = "reconstruction: GraspNotSeenError"
+"""The refusal that is the right answer for a frame whose true grasp point is hidden."""
 
 
 @dataclass
@@ -90,6 +98,9 @@ class _Tally:
     latency: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     failures: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     grasp_missing: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    hidden: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    hidden_success: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    hidden_grasped_within: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     notes: list[str] = field(default_factory=list)
     per_frame: list[dict[str, Any]] = field(default_factory=list)
 
@@ -258,10 +269,20 @@ class Scoreboard:
                 record["ordering_success"] = success
                 record["ordering"] = "no sequence" if score is None else score.reason
         record["grasp_produced"] = outputs.path is not None and outputs.grasp is not None
+        hidden = true_grasp_hidden(frame)
+        if hidden is not None:
+            record["grasp_hidden"] = hidden
+        tally.hidden["hidden"] += bool(hidden)
         if not record["grasp_produced"]:
             if frame.true_path is not None and frame.true_grasp is not None:
                 tally.grasp_missing[frame.topology] += 1
+                if hidden and outputs.failure == NOT_SEEN_REFUSAL:
+                    tally.hidden_success[frame.topology] += 1
+                    tally.hidden["refused_not_seen"] += 1
+                elif hidden:
+                    tally.hidden["refused_otherwise"] += 1
             return record
+        tally.hidden["grasped"] += bool(hidden)
         tally.produced += 1
         record["grasp_position"] = np.asarray(outputs.grasp).tolist()
         masks = outputs.used_masks if outputs.used_masks is not None else outputs.masks
@@ -282,6 +303,8 @@ class Scoreboard:
         tally.length_error[frame.topology].append(abs(score.length_error))
         tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
         tally.grasp[frame.topology].append(score.grasp_error)
+        if hidden and score.grasp_error <= WITHIN:
+            tally.hidden_grasped_within[frame.topology] += 1
         record.update(score.as_mm())
         return record
 
@@ -321,6 +344,32 @@ class Scoreboard:
         return _summary(self.tally, masks, sequences)
 
 
+def true_grasp_hidden(frame: Frame) -> bool | None:
+    """Whether the frame's true grasp point is hidden in either view; None without the truth.
+
+    The true sequences' rows are the same 3D samples in both views (docs/interfaces.md), so each
+    row triangulates exactly; the row nearest the true grasp point in 3D is the grasp point's,
+    and its visibility (third column, 1 visible) in each view says whether the view sees it.
+    """
+    left, right = frame.true_left_sequence, frame.true_right_sequence
+    if left is None or right is None or frame.true_grasp is None or len(left) != len(right):
+        return None
+    samples = frame.camera.triangulate(left[:, :2], right[:, 0])
+    row = int(np.argmin(np.linalg.norm(samples - np.asarray(frame.true_grasp), axis=1)))
+    return bool(left[row, 2] < 0.5 or right[row, 2] < 0.5)
+
+
+def _within(tally: _Tally, topology: str | None = None) -> int:
+    """Frames that count as successes: grasps within 5 mm of a true grasp point that is not hidden,
+    and refusals of a hidden one as not seen (over every topology when ``topology`` is None)."""
+    topologies = set(tally.grasp) | set(tally.hidden_success) if topology is None else {topology}
+    count = 0
+    for name in topologies:
+        count += int(np.sum(np.asarray(tally.grasp.get(name, [])) <= WITHIN))
+        count += tally.hidden_success.get(name, 0) - tally.hidden_grasped_within.get(name, 0)
+    return count
+
+
 def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
     """Run the stages the sources ask for on one frame (the nodes' core functions)."""
     outputs = StageOutputs()
@@ -353,7 +402,8 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
             outputs.failure, outputs.detail = f"ordering: {type(error).__name__}", str(error)
             return outputs
         outputs.latency_ms["ordering"] = _elapsed_ms(start)
-        sequences = outputs.sequences = (ordering.left, ordering.right)
+        outputs.sequences = (ordering.left, ordering.right)
+        sequences = (ordering.left_sequence, ordering.right_sequence)  # z: not seen (bridged)
 
     images = None
     if stages.use_images and frame.left_image is not None and frame.right_image is not None:
@@ -454,8 +504,7 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
                     "grasp_max_error_mm": float(np.max(tally.grasp[t])) * 1000,
                     "length_error_mm": _mean(tally.length_error[t], 1000),
                     "keypoint_error_mm": _mean(tally.keypoints[t], 1000),
-                    "within_5mm": float(np.sum(np.asarray(tally.grasp[t]) <= 0.005))
-                    / (len(tally.grasp[t]) + tally.grasp_missing[t]),
+                    "within_5mm": _within(tally, t) / (len(tally.grasp[t]) + tally.grasp_missing[t]),
                     "frames": len(tally.recon_mean[t]),
                 }
                 for t in sorted(tally.recon_mean)
@@ -464,12 +513,14 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
         "grasp": {
             "median_error_mm": float(np.median(all_grasp)) * 1000 if all_grasp else None,
             "max_error_mm": float(np.max(all_grasp)) * 1000 if all_grasp else None,
-            "within_5mm": (
-                float(np.sum(np.asarray(all_grasp) <= 0.005)) / scored_frames if scored_frames else None
-            ),
+            "within_5mm": _within(tally) / scored_frames if scored_frames else None,
             "produced": tally.produced,
             "beyond_10mm": int(np.sum(np.asarray(all_grasp) > 0.010)) if all_grasp else None,
             "refused": dict(sorted(tally.failures.items())),
+            "hidden": {
+                key: tally.hidden.get(key, 0)
+                for key in ("hidden", "refused_not_seen", "grasped", "refused_otherwise")
+            },
         },
         "self_consistency": {
             "reprojection_mean_px": _mean(tally.reprojection_mean),

@@ -95,10 +95,11 @@ def stage_outputs(frame: Frame, got: Received | None, published_ns: int | None) 
         result.masks = (np.zeros_like(frame.true_left_mask), np.zeros_like(frame.true_right_mask))
         result.failure = "segmentation: no masks published"
     if topics.LEFT_SEQUENCE in found and topics.RIGHT_SEQUENCE in found:
-        result.sequences = (
-            messages.polygon_to_array(found[topics.LEFT_SEQUENCE])[:, :2],
-            messages.polygon_to_array(found[topics.RIGHT_SEQUENCE])[:, :2],
+        # Scored like StereoOrdering.left/right: the points seen in the mask (z = 0).
+        left, right = (
+            messages.polygon_to_array(found[t]) for t in (topics.LEFT_SEQUENCE, topics.RIGHT_SEQUENCE)
         )
+        result.sequences = (left[left[:, 2] == 0.0, :2], right[right[:, 2] == 0.0, :2])
     elif result.failure is None:
         result.failure = "ordering: no sequences published"
     if topics.GRASP_POSE in found and topics.PATH in found:

@@ -14,7 +14,7 @@ import pytest
 from suture_bench.evaluate import evaluate
 from suture_common.camera import StereoCamera
 from suture_ordering import OrderingParams, order_stereo
-from suture_reconstruction import ThreadTooShortError, reconstruct
+from suture_reconstruction import GraspNotSeenError, ReconstructionParams, ThreadTooShortError, reconstruct
 
 SAMPLE = Path(__file__).resolve().parents[3] / "bags" / "sample"
 KEYS = {"frames", "masks", "segmentation", "ordering", "reconstruction", "grasp", "latency_ms", "notes"}
@@ -80,7 +80,8 @@ def test_a_gap_one_view_alone_stops_at_is_crossed_with_the_other_view():
     """The int8 M-oST's masks of a fresh frame (seed 707, frame 36, curved): both views lose the
     thread for ~12 px; the right view's search bridges it, the left's does not, and alone the
     left sequence gave a 31 mm thread, too short for the 50 mm grasp. Continued along the right
-    view, the grasp lands within 5 mm of the true one (1.2 mm when stored)."""
+    view, the grasp lands within 5 mm of the true one (1.2 mm when stored). The grasp point lies
+    in the gap the right view bridged, so by default it is refused as not seen."""
     stored = np.load(Path(__file__).parent / "data" / "one_view_gap.npz")
     shape = tuple(stored["shape"])
     left, right = (np.unpackbits(stored[v])[: shape[0] * shape[1]].reshape(shape) for v in ("left", "right"))
@@ -93,5 +94,8 @@ def test_a_gap_one_view_alone_stops_at_is_crossed_with_the_other_view():
 
     ordered = order_stereo(left, right, stored["hint"], camera)
     assert ordered.filled[0] > 50 and ordered.filled[1] == 0
-    grasp = reconstruct(ordered.left, ordered.right, camera).grasp_position
+    with pytest.raises(GraspNotSeenError, match="right view does not see"):
+        reconstruct(ordered.left, ordered.right, camera)
+    unrefused = ReconstructionParams(refuse_unseen_grasp=False)
+    grasp = reconstruct(ordered.left, ordered.right, camera, unrefused).grasp_position
     assert np.linalg.norm(grasp - stored["true_grasp"]) < 0.005

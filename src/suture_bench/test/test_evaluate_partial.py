@@ -161,3 +161,39 @@ def test_an_empty_mask_leaves_self_consistency_finite_and_says_so():
     assert summary["self_consistency"]["reprojection_mean_px"] is None
     assert summary["unscored"] == {"self-consistency: an empty mask or a path outside a view": 1}
     json.dumps(summary, allow_nan=False)
+
+
+def test_a_hidden_true_grasp_point_is_a_success_when_refused_as_not_seen_and_a_miss_when_grasped():
+    """The contract's rule for a true grasp point hidden in a view, both ways, and the counts."""
+    from suture_bench.evaluate import NOT_SEEN_REFUSAL, true_grasp_hidden
+
+    frame = next(iter(read_frames(SAMPLE, images=False, complete=False)))
+    assert true_grasp_hidden(frame) is False
+    samples = frame.camera.triangulate(frame.true_left_sequence[:, :2], frame.true_right_sequence[:, 0])
+    row = int(np.argmin(np.linalg.norm(samples - frame.true_grasp, axis=1)))
+    frame.true_right_sequence = frame.true_right_sequence.copy()
+    frame.true_right_sequence[row - 20 : row + 20, 2] = 0.0  # under an instrument in the right view
+    assert true_grasp_hidden(frame) is True
+
+    refused = Scoreboard(ordering_ran=False)
+    refused.add(frame, StageOutputs(failure=NOT_SEEN_REFUSAL))
+    summary = refused.summary("ground_truth", "ground_truth")
+    assert summary["grasp"]["within_5mm"] == 1.0
+    assert summary["grasp"]["hidden"] == {
+        "hidden": 1,
+        "refused_not_seen": 1,
+        "grasped": 0,
+        "refused_otherwise": 0,
+    }
+
+    grasped = Scoreboard(ordering_ran=False)  # exactly on the true point, but it cannot be seen
+    grasped.add(frame, StageOutputs(path=frame.true_path, grasp=frame.true_grasp))
+    summary = grasped.summary("ground_truth", "ground_truth")
+    assert summary["grasp"]["within_5mm"] == 0.0
+    assert summary["grasp"]["hidden"]["grasped"] == 1
+
+    other = Scoreboard(ordering_ran=False)  # refused, but not for that reason: a miss
+    other.add(frame, StageOutputs(failure="reconstruction: UncertainGraspError"))
+    summary = other.summary("ground_truth", "ground_truth")
+    assert summary["grasp"]["within_5mm"] == 0.0
+    assert summary["grasp"]["hidden"]["refused_otherwise"] == 1

@@ -35,14 +35,12 @@ def _record_outputs(path: Path, skip: set[int]) -> list[int]:
                     topic, messages.image_message(mask.astype(np.uint8) * 255, "mono8", stamp, FRAME), clock
                 )
             ordering = order_stereo(masks[0], masks[1], frame.tip_hint, frame.camera)
-            bag.write(
-                topics.LEFT_SEQUENCE, messages.polygon_message(ordering.left, stamp, FRAME), clock + 10**6
-            )
-            bag.write(
-                topics.RIGHT_SEQUENCE, messages.polygon_message(ordering.right, stamp, FRAME), clock + 10**6
-            )
+            # As ordering_node publishes them: z = 1 on points bridged across a gap in the mask.
+            left, right = ordering.left_sequence, ordering.right_sequence
+            bag.write(topics.LEFT_SEQUENCE, messages.polygon_message(left, stamp, FRAME), clock + 10**6)
+            bag.write(topics.RIGHT_SEQUENCE, messages.polygon_message(right, stamp, FRAME), clock + 10**6)
             images = (frame.left_image, frame.right_image)  # as reconstruction_node gets them
-            result = reconstruct(ordering.left, ordering.right, frame.camera, images=images)
+            result = reconstruct(left, right, frame.camera, images=images)
             bag.write(topics.PATH, messages.path_message(result.path, stamp, FRAME), clock + 2 * 10**6)
             pose = messages.pose_message(result.grasp_position, np.array([0, 0, 0, 1.0]), stamp, FRAME)
             bag.write(topics.GRASP_POSE, pose, clock + 3 * 10**6)

@@ -23,6 +23,7 @@ import numpy as np
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
 from suture_ordering.errors import InvalidInputError, OrderingError
+from suture_ordering.not_seen import flagged_sequence
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
@@ -75,6 +76,11 @@ class StereoOrdering:
     nothing under the occluder can be seen, matched between the views or triangulated.
     ``left_result`` / ``right_result``: the per-view :class:`OrderingResult` (with the gap
     interpolation in ``points``, status and diagnostics) of each view's own search.
+    ``left_sequence`` and ``right_sequence``: (N', 3) and (M', 3) float64 u, v, not seen: the
+    published sequences, ``left`` and ``right`` with the stretches each view's search bridged
+    across gaps put back and flagged 1.0 in the third column (0.0: seen in the mask;
+    :mod:`suture_ordering.not_seen`); ordering_node publishes them and the 3D stage takes depth
+    across the flagged stretches from the seen thread on either side.
     ``filled``: points of ``left`` and ``right`` found by following the other view, across a gap
     in this view's mask or round a loop this view's search cut across
     (:mod:`suture_ordering.stereo_fill`); 0 where none was needed. ``low_masks_used``: the
@@ -85,6 +91,8 @@ class StereoOrdering:
     right: np.ndarray
     left_result: OrderingResult
     right_result: OrderingResult
+    left_sequence: np.ndarray
+    right_sequence: np.ndarray
     filled: tuple[int, int] = (0, 0)
     low_masks_used: bool = False
 
@@ -329,5 +337,7 @@ def _order_pair(
         right=sequences[1],
         left_result=left,
         right_result=right,
+        left_sequence=flagged_sequence(sequences[0], left.points, left.bridged, left_prepared.clean.mask),
+        right_sequence=flagged_sequence(sequences[1], right.points, right.bridged, right_prepared.clean.mask),
         filled=(filled[0], filled[1]),
     )

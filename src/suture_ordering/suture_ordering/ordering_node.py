@@ -5,8 +5,11 @@ Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data Q
 ``/suture/tip_hint`` (geometry_msgs/PointStamped, optional, matched by stamp as below) and
 ``/stereo/{left,right}/camera_info``; pairs the masks by exact ``header.stamp``
 (:class:`suture_common.stamp_buffer.StampPairBuffer`) and publishes
-``/suture/{left,right}/sequence`` (geometry_msgs/PolygonStamped, x = u, y = v, z = 0,
-header = that mask's header, reliable QoS) for each pair.
+``/suture/{left,right}/sequence`` (geometry_msgs/PolygonStamped, header = that mask's header,
+reliable QoS) for each pair: x = u, y = v from the cut tip, and z the not-seen flag, 0.0 for a
+point seen in the mask and 1.0 for one the search interpolated across a gap in it (e.g. under
+an instrument shaft lying across the thread; ``StereoOrdering.left_sequence``), so that the 3D
+stage takes depth there from the seen thread on either side instead of matching it.
 
 With ``use_low_masks`` (default true) it also subscribes ``/suture/{left,right}/mask_low``
 (segmentation_node's low masks, the same format) and gives the pair of the masks' stamp to
@@ -295,8 +298,8 @@ class OrderingNode(Node):
             self._warnings.warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
             return
         for publisher, points, header in (
-            (self._left_pub, result.left, left.header),
-            (self._right_pub, result.right, right.header),
+            (self._left_pub, result.left_sequence, left.header),
+            (self._right_pub, result.right_sequence, right.header),
         ):
             publisher.publish(serialized(polygon_message(points, stamp_ns, header.frame_id)))
         self.frames_published += 1

@@ -139,6 +139,23 @@ class OrderingParams:
             (0.0, math.pi),
         ),
     )
+    occluder_reach_px: float = field(
+        default=160.0,
+        metadata=described(
+            "where the search ends, the thread may continue beyond a gap up to this far (px) when "
+            "the thread beyond continues its direction and curvature (an instrument lying across "
+            "it, suture_ordering.occluders); at most tau_o_factor x Υ: off",
+            (0.0, 10_000.0),
+        ),
+    )
+    occluder_bend_max: float = field(
+        default=math.radians(40.0),
+        metadata=described(
+            "across an occluder (occluder_reach_px) the turns into and out of the chord may differ "
+            "by at most this (rad): the thread may bend either way where it is hidden",
+            (0.0, math.pi),
+        ),
+    )
     junction_bend_max: float = field(
         default=math.radians(30.0),
         metadata=described(
@@ -262,6 +279,7 @@ class OrderingParams:
             "max_mask_fraction",
             "bridge_turn_max",
             "bridge_bend_max",
+            "occluder_bend_max",
             "min_crossing_angle",
             "junction_bend_max",
             "junction_tie",

@@ -17,6 +17,7 @@ ambiguous is described in the module that makes it (and tested in ``test/test_se
 * :mod:`suture_ordering.steps`: active, detected and far nodes, the next vertex;
 * :mod:`suture_ordering.path`: the traversed path and the turning angle δ;
 * :mod:`suture_ordering.bridging`: τ_O and gaps in the mask;
+* :mod:`suture_ordering.occluders`: wider gaps, where an instrument lies across the thread;
 * :mod:`suture_ordering.junctions`: crossings, the thread's own loops, touching threads;
 * :mod:`suture_ordering.loops`: leaving a loop across the first pass;
 * :mod:`suture_ordering.ending`: termination and the free end;
@@ -46,6 +47,7 @@ from suture_ordering.context import SearchContext
 from suture_ordering.ending import append_tail, end_status
 from suture_ordering.loops import across_own_path
 from suture_ordering.nodes import Candidates, MaskReader
+from suture_ordering.occluders import across_occluder
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.path import Branch, advance
 from suture_ordering.steps import next_candidates
@@ -109,6 +111,8 @@ class Searcher:
                 found = next_candidates(context, branch)
                 if found is None:
                     found = across_own_path(context, branch)
+                if found is None:
+                    found = across_occluder(context, branch)
                 if found is None:
                     append_tail(context, branch)
                     branch.status = end_status(context, branch.vertices[-1])

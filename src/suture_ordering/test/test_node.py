@@ -211,14 +211,15 @@ def test_masks_use_the_tip_hint_of_their_own_stamp_not_the_latest(ros):
 
 
 def test_low_masks_of_the_stamp_carry_the_sequences_across_a_faint_stretch(ros):
-    """Masks broken for 92 px in both views (a faint stretch) end the sequences there; the low
+    """Masks broken for 200 px in both views (a faint stretch, farther than the ordering bridges
+    an occluder: occluder_reach_px) end the sequences there; the low
     masks of the same stamp, published just before them as segmentation_node does, are whole and
     give the sequences to the end. A later pair whose low masks never come is ordered from its
     masks alone once it has waited low_mask_wait, and counted."""
     executor, node, publishers, received = ros
     camera = StereoCamera.default(W, H)
     low_left, low_right, truth = _scene()
-    faint = slice(600, 900)  # samples of the 1500 along the thread: a 92 px stretch
+    faint = slice(450, 1100)  # samples of the 1500 along the thread: a 200 px stretch
     left, right = low_left.copy(), low_right.copy()
     box = np.rint(truth[faint]).astype(int)
     for mask, shift in ((left, 0), (right, 30)):
@@ -246,3 +247,29 @@ def test_low_masks_of_the_stamp_carry_the_sequences_across_a_faint_stretch(ros):
     whole, broken = received[topics.LEFT_SEQUENCE][0], received[topics.LEFT_SEQUENCE][-1]
     assert reach(whole) > 0.95 and reach(broken) < 0.5
     assert node.low_masks_seen and node.without_low_masks >= 1
+
+
+def test_points_bridged_under_a_wide_occluder_are_published_with_z_one(ros):
+    executor, _node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    left, right, truth = _scene()
+    # An instrument shaft 90 px wide lies across the thread in both views (same rows).
+    shaft = np.array([[300, 0], [390, 0], [390, H], [300, H]], np.int32)
+    cv2.fillConvexPoly(left, shaft, 0)
+    cv2.fillConvexPoly(right, shaft - [30, 0], 0)
+    _wait_for_subscribers(executor, publishers)
+    for _ in range(20):
+        _send_frame(publishers, STAMP, left, right, truth[0] + 1.0, camera, executor=executor)
+        if spin_until(executor, lambda: all(received.values()), 0.5):
+            break
+    assert all(received.values()), "no sequences after 20 frames"
+    for topic, shift in ((topics.LEFT_SEQUENCE, 0), (topics.RIGHT_SEQUENCE, 30)):
+        points = polygon_to_array(received[topic][0])
+        assert set(np.unique(points[:, 2])) == {0.0, 1.0}
+        not_seen = points[:, 2] == 1.0
+        # z = 1 on every point under the shaft (and on at most a step, r_s = 8 px, of seen thread
+        # before it, where the bridge leaves the last vertex); they lie on the hidden centreline.
+        under = (points[:, 0] > 300 - shift + 1) & (points[:, 0] < 390 - shift - 1)
+        assert not_seen[under].all() and (not_seen & ~under).sum() <= 16
+        distance, index = cKDTree(truth - [shift, 0]).query(points[:, :2])
+        assert distance[not_seen].max() < 3.0 and index[-1] > 0.95 * len(truth)

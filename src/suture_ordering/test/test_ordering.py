@@ -112,13 +112,17 @@ def test_a_16_px_gap_is_bridged_and_flagged():
     assert np.max(np.hypot(*np.diff(visible, axis=0).T)) >= 16  # one jump across the gap
 
 
-def test_a_gap_longer_than_tau_o_ends_the_sequence():
+def test_a_gap_longer_than_tau_o_ends_the_sequence_unless_it_continues_across_an_occluder():
     truth = line((60, 240), (580, 240))
     mask = draw([truth])
     cv2.rectangle(mask, (300, 200), (379, 280), 0, -1)  # 80 px > tau_O = 2.6 * 24 px
-    result = order_sequence(mask, truth[0])
+    result = order_sequence(mask, truth[0], OrderingParams(occluder_reach_px=0.0))
     assert result.bridges == 0 and result.status == "free_end"
     assert 290 <= result.points[-1, 0] < 300
+    # With the occluder bridging (the default) the thread beyond, straight on, is reached.
+    result = order_sequence(mask, truth[0])
+    assert result.bridges == 1 and result.points[-1, 0] > 575
+    assert np.all(np.abs(result.points[result.bridged, 1] - 240) < 1.0)
 
 
 def test_a_closed_ring_has_no_free_end():
@@ -289,9 +293,11 @@ def _faint_stretch_scene():
 def test_low_masks_carry_the_sequences_across_a_faint_stretch():
     camera = StereoCamera.default(W, H)
     (left, right), low, truth = _faint_stretch_scene()
-    alone = order_stereo(left, right, truth[0] + 1.0, camera)
+    # The search alone (not bridging it as an occluder) stops at the faint stretch.
+    params = OrderingParams(occluder_reach_px=0.0)
+    alone = order_stereo(left, right, truth[0] + 1.0, camera, params)
     assert not alone.low_masks_used and alone.left_result.length_px < 250  # of ~480 px: stops there
-    result = order_stereo(left, right, truth[0] + 1.0, camera, low_masks=low)
+    result = order_stereo(left, right, truth[0] + 1.0, camera, params, low_masks=low)
     assert result.low_masks_used
     check_follows(result.left, truth, tolerance=1.5)
     check_follows(result.right, truth - [30, 0], tolerance=1.5)
@@ -341,15 +347,17 @@ def _gap_in_right_view(gap_rows: tuple[int, int], disparity_after: float = 30.0)
 
 
 def test_a_gap_in_one_view_only_is_crossed_along_the_other_view():
-    # 75 rows missing in the right mask: longer than its search bridges (tau_O = 62 px), so alone
-    # it stops there and the thread is too short to grasp.
+    # 75 rows missing in the right mask: longer than its search bridges (tau_O = 62 px; not as an
+    # occluder here), so alone it stops there and the thread is too short to grasp.
     camera = StereoCamera.default(W, H)
     left, right, truth_left, truth_right, right_visible = _gap_in_right_view((200, 275), 31.5)
-    alone = order_stereo(left, right, truth_left[0], camera, OrderingParams(stereo_fill_max_gap_px=0))
+    params = OrderingParams(stereo_fill_max_gap_px=0, occluder_reach_px=0.0)
+    alone = order_stereo(left, right, truth_left[0], camera, params)
     assert alone.right[-1, 1] < 202 and alone.filled == (0, 0)
     assert alone.right_result.status == "free_end"
 
-    result = order_stereo(left, right, truth_left[0], camera, OrderingParams(stereo_fill_max_gap_px=100))
+    params = OrderingParams(stereo_fill_max_gap_px=100, occluder_reach_px=0.0)
+    result = order_stereo(left, right, truth_left[0], camera, params)
     check_follows(result.left, truth_left, tolerance=1.5)
     assert result.filled[0] == 0 and result.filled[1] > 100
     assert result.right[-1, 1] > 420  # on to the end
@@ -381,7 +389,8 @@ def test_a_stop_that_ends_in_a_hook_is_continued_from_before_the_hook():
 def test_the_other_view_is_followed_only_across_gaps_up_to_the_limit():
     camera = StereoCamera.default(W, H)
     left, right, truth_left, _, _ = _gap_in_right_view((200, 275))
-    result = order_stereo(left, right, truth_left[0], camera)  # default limit: 60 px
+    params = OrderingParams(occluder_reach_px=0.0)  # the search alone stops at the gap
+    result = order_stereo(left, right, truth_left[0], camera, params)  # default limit: 60 px
     assert result.filled == (0, 0) and result.right[-1, 1] < 202
 
 

@@ -84,7 +84,9 @@ def test_tau_o_is_a_pixel_length_proportional_to_the_roi():
     # A 50 px gap is bridged with the default tau_O = 62 px, not with tau_O = 2.6 * 16 = 42 px.
     mask = _line_mask((60, 240), (580, 240), gap=((300, 200), (349, 300)))
     assert order_sequence(mask, np.array([60.0, 240.0])).bridges == 1
-    short = order_sequence(mask, np.array([60.0, 240.0]), OrderingParams(roi_radius_px=16))
+    short = order_sequence(
+        mask, np.array([60.0, 240.0]), OrderingParams(roi_radius_px=16, occluder_reach_px=0.0)
+    )
     assert short.bridges == 0 and short.points[-1, 0] < 300
 
 

@@ -7,19 +7,26 @@ rclpy adapter (the only module here that imports rclpy).
 
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import (
+    GraspNotSeenError,
+    GraspRefusedError,
     ImagePairError,
     InvalidSequenceError,
     NoStereoOverlapError,
     ReconstructionError,
     ThreadTooShortError,
     TooFewPointsError,
+    UncertainGraspError,
 )
 from suture_reconstruction.pairing import DisparitySmoothing, PairingParams, SelectionCosts
 from suture_reconstruction.photometric import PhotometricParams
 from suture_reconstruction.shape_graph import ShapeGraphParams
+from suture_reconstruction.uncertainty import GraspUncertainty
 
 __all__ = [
     "DisparitySmoothing",
+    "GraspNotSeenError",
+    "GraspRefusedError",
+    "GraspUncertainty",
     "ImagePairError",
     "InvalidSequenceError",
     "NoStereoOverlapError",
@@ -32,5 +39,6 @@ __all__ = [
     "ShapeGraphParams",
     "ThreadTooShortError",
     "TooFewPointsError",
+    "UncertainGraspError",
     "reconstruct",
 ]

@@ -5,10 +5,10 @@
 both call. Steps (paper Section II.B end and II.C):
 
 1. validate the sequences ((N, 2) pixels from the cut tip, finite, at least
-   ``min_points``); smooth each lightly (Savitzky-Golay, ``smoothing_window``
-   samples) and resample it every 1 px of its own arc length; a step longer
-   than ``max_jump_px`` is a jump over a hidden stretch, not observed thread
-   (:mod:`suture_reconstruction.sequences`);
+   ``min_points``; (N, 3) with the not-seen flag, :mod:`suture_reconstruction.not_seen`);
+   smooth each lightly (Savitzky-Golay, ``smoothing_window`` samples) and resample it
+   every 1 px of its own arc length; a step longer than ``max_jump_px`` is a jump over a
+   hidden stretch, not observed thread (:mod:`suture_reconstruction.sequences`);
 2. stereo pairing on epipolar rows, sub-pixel, monotone along the thread, within
    the disparity limits of the working depth range, and disparity
    regularisation along the thread (:mod:`suture_reconstruction.pairing`);
@@ -25,20 +25,24 @@ both call. Steps (paper Section II.B end and II.C):
    the sequences' roughness (``pair_noise_floor``); followed, it is a depth
    ripple that makes the thread too long;
 3. triangulation of every left sample with a supported disparity
-   (:mod:`suture_reconstruction.triangulation`): the dense vertices ``points``;
+   (:mod:`suture_reconstruction.triangulation`): the dense vertices ``points``; the samples
+   of not-seen stretches between them at the disparity interpolated across
+   (:mod:`suture_reconstruction.not_seen`);
 4. resampling of the vertices every ``vertex_step`` along each unbroken run and
    Algorithm 1 (:mod:`suture_reconstruction.shape_graph`);
 5. a smoothing spline through the path's vertices, re-parametrised by arc
    length (:mod:`suture_reconstruction.curve`): ``path`` every ``path_step``
    and ``length``;
-6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``).
+6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``), and its
+   uncertainty (:mod:`suture_reconstruction.uncertainty`): a grasp point a view does not see,
+   or one uncertain by more than ``max_grasp_uncertainty_mm``, is refused.
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera) and ``suture_common.camera.CameraModelError`` for an
-unusable camera.
+camera; GraspNotSeenError and UncertainGraspError for a grasp point that is not trusted)
+and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.parameters import described
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
 from suture_reconstruction.pairing import (
     Disparity,
     DisparitySmoothing,
@@ -64,9 +69,10 @@ from suture_reconstruction.pairing import (
     regularise_disparity,
 )
 from suture_reconstruction.photometric import PhotometricParams, check_image_pair, refine_disparity
-from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible, resample, smooth_sequence
+from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
+from suture_reconstruction.uncertainty import GraspUncertainty, assess_grasp, refuse_uncertain_grasp
 
 
 @dataclass(frozen=True)
@@ -88,7 +94,8 @@ class ReconstructionParams:
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
-    ``grasp_arc_length`` (m from the cut tip).
+    ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
+    ``refuse_unseen_grasp`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
     """
@@ -135,6 +142,18 @@ class ReconstructionParams:
             (0.0, 1.0),
         ),
     )
+    max_grasp_uncertainty_mm: float = field(
+        default=15.0,
+        metadata=described(
+            "largest estimated uncertainty (mm) of the grasp point that is still published; a grasp "
+            "point less certain is refused (UncertainGraspError)",
+            (0.0, 1000.0),
+        ),
+    )
+    refuse_unseen_grasp: bool = field(
+        default=True,
+        metadata=described("refuse a grasp point that a view does not see (GraspNotSeenError)"),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -143,6 +162,10 @@ class ReconstructionParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
+        if not self.max_grasp_uncertainty_mm > 0:
+            raise ValueError(
+                f"max_grasp_uncertainty_mm must be positive, got {self.max_grasp_uncertainty_mm}"
+            )
         if not (self.curve_smoothing >= 0 and self.grasp_arc_length >= 0):
             raise ValueError("curve_smoothing and grasp_arc_length must not be negative")
 
@@ -198,6 +221,11 @@ class Reconstruction:
     ``shape``: Algorithm 1's result (``tau_l`` used, path vertex indices into
     ``vertices`` (V, 3), the resampled input). ``rejected``: counts of left
     samples without a vertex, by reason. ``timings_ms``: per step.
+    ``uncertainty``: the grasp point's estimated uncertainty and its parts
+    (:class:`~suture_reconstruction.uncertainty.GraspUncertainty`); ``path_not_seen`` (P,) bool:
+    True where the path point lies on a stretch that a view does not see (flagged in the
+    sequences, its depth interpolated from the seen thread on either side,
+    :mod:`suture_reconstruction.not_seen`, or jumped over); ``points`` holds the seen vertices only.
     """
 
     points: np.ndarray
@@ -213,6 +241,13 @@ class Reconstruction:
     rejected: dict[str, int]
     timings_ms: dict[str, float]
     image_matches: int = 0
+    uncertainty: GraspUncertainty | None = None
+    path_not_seen: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    @property
+    def grasp_uncertainty_mm(self) -> float:
+        """The grasp point's estimated uncertainty (mm); NaN when it was not assessed."""
+        return float("nan") if self.uncertainty is None else self.uncertainty.total_mm
 
     @property
     def tau_l(self) -> float:
@@ -237,9 +272,11 @@ def reconstruct(
     ----------
     left_sequence, right_sequence : (N, 2) and (M, 2) array_like of float
         The thread's ordered centreline in the left and right rectified images, pixels (u, v)
-        from the cut tip, about 1 px apart, as the ordering stage publishes them ((N, 3) arrays
-        are accepted, the third column ignored). A step longer than ``params.max_jump_px`` is
-        taken as a jump over a hidden stretch.
+        from the cut tip, about 1 px apart, as the ordering stage publishes them; (N, 3) arrays
+        carry the not-seen flag in the third column (1.0: interpolated across a gap in the mask,
+        never matched; its depth comes from the seen thread on either side,
+        :mod:`suture_reconstruction.not_seen`; a grasp point there is refused). A step longer
+        than ``params.max_jump_px`` is taken as a jump over a hidden stretch.
     camera : suture_common.camera.StereoCamera
         The rectified pair (intrinsics, baseline in m, image size).
     params : ReconstructionParams, optional
@@ -268,6 +305,10 @@ def reconstruct(
         The reconstructed thread is shorter than ``params.grasp_arc_length``.
     ImagePairError
         ``images`` that do not fit the camera.
+    GraspNotSeenError
+        The grasp point lies on a stretch a view does not see (``params.refuse_unseen_grasp``).
+    UncertainGraspError
+        The grasp point's uncertainty exceeds ``params.max_grasp_uncertainty_mm``.
     ReconstructionError
         Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
         point (the base class of all the above; a ``ValueError``).
@@ -301,7 +342,10 @@ def reconstruct(
     left, right = _checked_sequences(left_sequence, right_sequence, camera, params.min_points)
     if images is not None:
         images = check_image_pair(images, camera.width, camera.height)
-    left, right = _observed(left, params), _observed(right, params)
+    (left, left_hidden), (right, _) = (
+        observed_samples(sequence, not_seen_flags(raw, name), params.smoothing_window, params.max_jump_px)
+        for sequence, raw, name in ((left, left_sequence, "left"), (right, right_sequence, "right"))
+    )
     d_range = (camera.disparity(params.pairing.max_depth), camera.disparity(params.pairing.min_depth))
     pairs, disparity, rejected = _stereo_disparity(left, right, d_range, params)
     timer.lap("pairing")
@@ -313,13 +357,17 @@ def reconstruct(
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
     rejected["unsupported"] = triangulated.unsupported
+    thread = with_not_seen(camera, left, left_hidden, disparity, d_range, triangulated)
     timer.lap("triangulation")
-    vertices, shape = _shape(triangulated, params)
+    vertices, shape = _shape(thread, params)
     timer.lap("optimisation")
     curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
     timer.lap("curve_and_grasp")
+    uncertainty, path_not_seen = assess_grasp(curve, path, camera, (left, right), params.grasp_arc_length)
+    refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
+    timer.lap("uncertainty")
     return Reconstruction(
         points=triangulated.points,
         left_uv=triangulated.left_uv,
@@ -334,6 +382,8 @@ def reconstruct(
         rejected=rejected,
         timings_ms=timer.timings(),
         image_matches=image_matches,
+        uncertainty=uncertainty,
+        path_not_seen=path_not_seen,
     )
 
 
@@ -363,11 +413,6 @@ def _checked_sequences(
     check_plausible(left, camera.width, camera.height, "left")
     check_plausible(right, camera.width, camera.height, "right")
     return left, right
-
-
-def _observed(sequence: np.ndarray, params: ReconstructionParams) -> Resampled:
-    """A sequence smoothed lightly and resampled every 1 px, jumps marked as not observed."""
-    return resample(smooth_sequence(sequence, params.smoothing_window), 1.0, params.max_jump_px)
 
 
 def _stereo_disparity(

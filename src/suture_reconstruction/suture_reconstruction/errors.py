@@ -34,3 +34,20 @@ class ThreadTooShortError(ReconstructionError):
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""
+
+
+class GraspRefusedError(ReconstructionError):
+    """The thread was reconstructed but its grasp point is not trusted; ``uncertainty`` holds the
+    :class:`~suture_reconstruction.uncertainty.GraspUncertainty` that says why."""
+
+    def __init__(self, message: str, uncertainty: object) -> None:
+        super().__init__(message)
+        self.uncertainty = uncertainty
+
+
+class GraspNotSeenError(GraspRefusedError):
+    """The grasp point lies on a stretch of thread that a view does not see (hidden or bridged)."""
+
+
+class UncertainGraspError(GraspRefusedError):
+    """The grasp point's estimated uncertainty exceeds ``max_grasp_uncertainty_mm``."""

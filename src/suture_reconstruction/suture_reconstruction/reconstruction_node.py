@@ -5,7 +5,9 @@ Subscribes ``/suture/left/sequence`` and ``/suture/right/sequence``
 (geometry_msgs/PolygonStamped, reliable) and ``/stereo/{left,right}/camera_info``
 (sensor_msgs/CameraInfo, sensor-data QoS, which also hears reliable publishers).
 Sequences are paired by exact ``header.stamp`` (:class:`StampPairBuffer`) and
-reconstructed with the latest camera_info pair.
+reconstructed with the latest camera_info pair. A sequence point's z is the not-seen flag
+(1.0: interpolated across a gap in the mask, e.g. under an instrument; 0.0: seen), which
+:func:`reconstruct` reads (:mod:`suture_reconstruction.not_seen`).
 
 With ``use_images`` (default true) it also subscribes the rectified images
 ``/stereo/{left,right}/image_rect`` (sensor-data QoS; rgb8, bgr8 or mono8, the
@@ -30,7 +32,10 @@ stereo pair and frame ``frame_id`` (``left_camera_optical_frame``), reliable:
 Parameters (read at start-up; SI units): see :data:`PARAMETERS`. A frame that
 cannot be reconstructed (too few points, no stereo overlap, thread shorter than
 the reserve, NaN, missing or unusable camera_info) is dropped with one warning
-per reason and ``log_throttle`` seconds, and the node serves the next one.
+per reason and ``log_throttle`` seconds, and the node serves the next one. So is a
+frame whose grasp point is refused (:mod:`suture_reconstruction.uncertainty`): a
+grasp point a view does not see (GraspNotSeenError) or one uncertain by more than
+``max_grasp_uncertainty_mm`` (UncertainGraspError); nothing of it is published.
 """
 
 from __future__ import annotations
@@ -91,6 +96,8 @@ IMAGE_ENCODINGS = ("rgb8", "bgr8", "mono8")
 
 _CORE_PARAMETERS = (
     (ReconstructionParams, "grasp_arc_length"),
+    (ReconstructionParams, "max_grasp_uncertainty_mm"),
+    (ReconstructionParams, "refuse_unseen_grasp"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),

@@ -25,6 +25,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
 from suture_common import topics
+from suture_common.camera import CameraInfoCache
 from suture_common.messages import (
     image_message,
     ns_from_stamp,
@@ -238,6 +239,29 @@ def test_bad_input_is_dropped_and_the_node_keeps_serving(harness, sample_frames)
     harness.send_sequences(stamp + 7, noisy(good.left, rng), noisy(good.right, rng))
     assert harness.wait_outputs(1)
     assert ns_from_stamp(harness.received["path"][0].header.stamp) == stamp + 7
+
+
+def test_a_refused_grasp_is_logged_by_reason_and_nothing_is_published(context, sample_frames):
+    """A grasp point the views do not see (flagged z = 1 around it) and one more uncertain than
+    max_grasp_uncertainty_mm are dropped by reason; the next frame is served."""
+    frame = sample_frames[1]
+    h = Harness(context, max_grasp_uncertainty_mm=0.01)
+    try:
+        h.send_camera_info(frame.left_info, frame.right_info)
+        cache = CameraInfoCache()
+        cache.update("left", frame.left_info)
+        cache.update("right", frame.right_info)
+        samples = cache.camera().triangulate(frame.left, frame.right[:, 0])  # same 3D sample per row
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(samples, axis=0), axis=1))])
+        hidden = ((arc > 0.045) & (arc < 0.056)).astype(float)
+        left, right = np.column_stack([frame.left, hidden]), np.column_stack([frame.right, hidden])
+        h.send_sequences(frame.stamp_ns, left, right)
+        assert spin_until(h.executor, lambda: h.node.dropped.get("GraspNotSeenError") == 1, TIMEOUT)
+        h.send_sequences(frame.stamp_ns + 1, frame.left, frame.right)
+        assert spin_until(h.executor, lambda: h.node.dropped.get("UncertainGraspError") == 1, TIMEOUT)
+        assert not any(h.received.values()) and h.node.frames == 0
+    finally:
+        h.close()
 
 
 def test_parameters_reach_the_core(context, sample_frames):

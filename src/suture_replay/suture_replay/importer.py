@@ -51,9 +51,10 @@ import cv2
 import numpy as np
 
 from suture_common import messages, topics
-from suture_common.bag_io import BagWriter, read_messages
+from suture_common.bag_io import BagMessage, BagWriter, bag_summary, read_messages
 from suture_common.camera import StereoCamera
 from suture_common.image_files import image_files
+from suture_common.stamp_buffer import StampPairBuffer
 from suture_replay.calibration import (
     Rectifier,
     StereoCalibration,
@@ -64,6 +65,8 @@ from suture_replay.calibration import (
 
 DEFAULT_START_NS = 1_700_000_000_000_000_000
 NANOSECOND_DIGITS = 16
+PAIRING_WINDOW = 30
+"""Images of one view that may wait for the other view's image of their stamp."""
 
 
 class RecordingError(ValueError):
@@ -166,10 +169,9 @@ def _decode(message: Any, msgtype: str, topic: str) -> np.ndarray:
             raise RecordingError(f"{topic}: a compressed image ({message.format}) cannot be decoded")
         return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     try:
-        image = messages.image_to_array(message)
+        return messages.image_to_rgb(message)
     except messages.MessageConversionError as error:
         raise RecordingError(f"{topic}: {error}") from error
-    return image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
 
 
 @dataclass
@@ -201,22 +203,26 @@ class BagSource:
         )
 
     def pairs(self) -> Iterator[RawPair]:
-        waiting: dict[int, dict[str, np.ndarray]] = {}
+        """Left and right images with the same header stamp, decoded as RGB, in bag order.
+
+        Images wait for their partner in a bounded buffer (a bag records both views of a stamp
+        close together); the ones that never find it are counted in ``unpaired``.
+        """
+        recorded = bag_summary(self.path)
+        for topic in (self.left_topic, self.right_topic):
+            if not recorded.get(topic, ("", 0))[1]:
+                raise RecordingError(f"{self.path} has no messages on {topic}; name the raw image topics")
+        waiting: StampPairBuffer[BagMessage] = StampPairBuffer(capacity=PAIRING_WINDOW)
         index = 0
-        seen = Counter()
         for record in read_messages(self.path, [self.left_topic, self.right_topic]):
-            seen[record.topic] += 1
             stamp = messages.ns_from_stamp(record.message.header.stamp)
             side = "left" if record.topic == self.left_topic else "right"
-            waiting.setdefault(stamp, {})[side] = _decode(record.message, record.msgtype, record.topic)
-            if len(waiting[stamp]) == 2:
-                got = waiting.pop(stamp)
-                yield RawPair(index, stamp, got["left"], got["right"])
+            pair = waiting.add(side, stamp, record)
+            if pair is not None:
+                left, right = (_decode(r.message, r.msgtype, r.topic) for r in pair)
+                yield RawPair(index, stamp, left, right)
                 index += 1
-        self.unpaired = len(waiting)
-        for topic in (self.left_topic, self.right_topic):
-            if not seen[topic]:
-                raise RecordingError(f"{self.path} has no messages on {topic}; name the raw image topics")
+        self.unpaired = waiting.dropped + sum(len(waiting.pending(side)) for side in ("left", "right"))
 
 
 def read_tip_hints(path: Path) -> dict[tuple[str, int], np.ndarray]:

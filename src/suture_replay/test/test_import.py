@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from skimage.registration import phase_cross_correlation
 
 from suture_bench.frames import read_frames
 from suture_common import messages
@@ -112,15 +113,16 @@ def apply(affine: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 def image_shift_on_thread(bag: Path, frames) -> dict[str, float]:
     """The imported frames against the simulator's (moved by the intrinsics' affine map): the
-    largest sub-pixel shift of the image around the thread (phase correlation), the smallest
-    centreline recall or precision (1 px) of the imported hand-drawn masks, the largest
+    largest sub-pixel shift of the image around the thread (phase correlation upsampled 20
+    times), the largest mean colour difference there (grey levels, RGB channel by channel), the
+    smallest centreline recall or precision (1 px) of the imported hand-drawn masks, the largest
     tip-hint error."""
     imported = list(read_frames(bag, images=True, complete=False))
     assert [f.stamp_ns for f in imported] == [f.stamp_ns for f in frames]  # stamps from the source
     camera = imported[0].camera
     assert camera.baseline == pytest.approx(CAMERA.baseline, rel=1e-9)
     affine = affine_to(camera)
-    worst = {"shift_px": 0.0, "mask_centreline": 1.0, "tip_px": 0.0}
+    worst = {"shift_px": 0.0, "colour": 0.0, "mask_centreline": 1.0, "tip_px": 0.0}
     for truth, got in zip(frames, imported, strict=True):
         for view in VIEWS:
             thread = apply(affine, np.argwhere(getattr(truth, f"{view}_mask") > 0)[:, ::-1].astype(float))
@@ -131,9 +133,12 @@ def image_shift_on_thread(bag: Path, frames) -> dict[str, float]:
                 cv2.cvtColor(image[crop], cv2.COLOR_RGB2GRAY).astype(np.float32)
                 for image in (expected, getattr(got, f"{view}_image"))
             ]
-            window = cv2.createHanningWindow(grey[0].shape[::-1], cv2.CV_32F)
-            (dx, dy), _ = cv2.phaseCorrelate(grey[0], grey[1], window)
-            worst["shift_px"] = max(worst["shift_px"], float(np.hypot(dx, dy)))
+            shift, _, _ = phase_cross_correlation(grey[0], grey[1], upsample_factor=20)
+            worst["shift_px"] = max(worst["shift_px"], float(np.hypot(*shift)))
+            colour = np.abs(expected[crop].astype(float) - getattr(got, f"{view}_image")[crop]).mean(
+                axis=(0, 1)
+            )
+            worst["colour"] = max(worst["colour"], float(colour.max()))
             got_mask = getattr(got, f"true_{view}_mask")
             if got_mask is not None:
                 expected_mask = cv2.warpAffine(getattr(truth, f"{view}_mask"), affine, SIZE) >= 128
@@ -182,7 +187,8 @@ def test_image_folders_with_an_opencv_calibration_come_back_rectified(recording,
     rectifier = Rectifier(load_opencv_stereo(root / "stereo.yaml"), SIZE)
     assert map_error_on_thread(rectifier, frames) < 0.5
     worst = image_shift_on_thread(out, frames)
-    assert worst["shift_px"] < 0.5 and worst["mask_centreline"] > 0.95 and worst["tip_px"] < 0.05, worst
+    assert worst["shift_px"] < 0.25 and worst["colour"] < 4 and worst["mask_centreline"] > 0.95, worst
+    assert worst["tip_px"] < 0.05, worst
     # the raw frames themselves are far from the simulator's: the checks can fail
     raw = cv2.imread(str(root / "left_masks" / f"left_{frames[0].stamp_ns}.png"), cv2.IMREAD_GRAYSCALE) > 0
     truth = frames[0].left_mask > 0
@@ -204,17 +210,24 @@ def test_a_raw_topic_bag_with_its_camera_info_comes_back_rectified(recording, tm
                 info = messages.camera_info_message(CAMERA, view, stamp, frame_id)
                 info.k, info.d, info.r = RAW_K[view].ravel(), RAW_D[view], RECTIFYING[view].ravel()
                 writer.write(f"/endoscope/{view}/camera_info", info, stamp)
+        # a left image whose right partner was dropped by the recorder: skipped and counted
+        lonely = frames[-1].stamp_ns + 1
+        writer.write("/endoscope/left/image_raw", messages.image_message(raw, "bgr8", lonely, "left"), lonely)
     out = tmp_path / "imported"
     arguments = ["--bag", str(bag), "--out", str(out)]
     for view in VIEWS:
         arguments += [f"--{view}-topic", f"/endoscope/{view}/image_raw"]
         arguments += [f"--{view}-info-topic", f"/endoscope/{view}/camera_info"]
         arguments += [f"--{view}-masks", str(root / f"{view}_masks")]  # matched by stamp
+    wrong_topic = [a.replace("right/image_raw", "right/image_rect") for a in arguments]
+    assert main(wrong_topic) == 1
+    assert "has no messages on /endoscope/right/image_rect" in capsys.readouterr().err
     assert main(arguments) == 0, capsys.readouterr().err
+    assert "1 unpaired image(s) skipped" in capsys.readouterr().out
     (camera,) = {f.camera for f in read_frames(out, images=False, complete=False)}
     assert camera == CAMERA  # the given rectification, exactly
     worst = image_shift_on_thread(out, frames)
-    assert worst["shift_px"] < 0.5 and worst["mask_centreline"] > 0.95, worst
+    assert worst["shift_px"] < 0.25 and worst["colour"] < 4 and worst["mask_centreline"] > 0.95, worst
 
 
 def test_bad_recordings_fail_with_one_line(recording, tmp_path, capsys):

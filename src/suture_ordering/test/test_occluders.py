@@ -1,0 +1,164 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The ordering across an occluder (suture_ordering.occluders): a wide instrument shaft lying
+across the thread is bridged, the bridged points flagged and on the hidden centreline; a thread
+that ends where another strand goes on is not joined to it."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from suture_common.camera import StereoCamera
+from suture_ordering import order_sequence, order_stereo
+from suture_ordering.not_seen import flagged_sequence
+from suture_ordering.occluders import end_direction
+
+W, H = 640, 480
+#: At 110 mm from the default 640 px camera (fx 520 px) 20 mm of thread is about 95 px.
+SHAFT_PX = 95
+
+
+def _curve() -> np.ndarray:
+    """A gently curved thread ~480 px long, 1 px samples, from its cut tip at the left."""
+    s = np.linspace(0.0, 1.0, 2000)
+    return np.column_stack([90 + 460 * s, 300 - 140 * s + 50 * np.sin(2.5 * s)])
+
+
+def _draw(centreline: np.ndarray, width: int = 3) -> np.ndarray:
+    mask = np.zeros((H, W), np.uint8)
+    cv2.polylines(mask, [np.rint(centreline).astype(np.int32)], False, 255, width)
+    return mask
+
+
+def _shaft(mask: np.ndarray, centreline: np.ndarray, at: float, across_px: float) -> np.ndarray:
+    """``mask`` with a straight shaft, hiding ``across_px`` of the centreline's arc, laid across it
+    at arc fraction ``at`` (perpendicular to the thread there, wider than the image)."""
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(centreline, axis=0).T))])
+    i = int(np.searchsorted(arc, at * arc[-1]))
+    tangent = centreline[i + 5] - centreline[i - 5]
+    tangent /= np.hypot(*tangent)
+    normal = np.array([-tangent[1], tangent[0]])
+    half = across_px / 2
+    corners = [
+        centreline[i] + a * tangent * half + b * normal * 1000
+        for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+    ]
+    hidden = mask.copy()
+    cv2.fillConvexPoly(hidden, np.rint(corners).astype(np.int32), 0)
+    return hidden
+
+
+def test_a_wide_shaft_is_bridged_with_the_bridged_points_flagged_on_the_hidden_centreline():
+    truth = _curve()
+    mask = _shaft(_draw(truth), truth, 0.45, SHAFT_PX)
+    result = order_sequence(mask, truth[0])
+    assert result.bridges == 1
+    bridged = result.points[result.bridged]
+    # The whole hidden stretch is bridged (about SHAFT_PX points) and the sequence goes on to the end.
+    assert SHAFT_PX - 10 <= len(bridged) <= SHAFT_PX + 25
+    assert np.hypot(*(result.points[-1] - truth[-1])) < 4.0
+    # Bridged points lie within a few px of the hidden true centreline (the last seen points at
+    # the shaft's oblique edge are up to 2 px off it already); those seen on it.
+    distance, _ = cKDTree(truth).query(result.points)
+    assert distance[result.bridged].max() < 3.5
+    assert np.median(distance[result.bridged]) < 2.5
+    assert distance[~result.bridged].max() < 2.5
+    hidden = mask[np.rint(bridged[:, 1]).astype(int), np.rint(bridged[:, 0]).astype(int)] == 0
+    assert hidden.mean() > 0.9
+
+
+def test_the_stereo_ordering_publishes_the_bridged_stretch_flagged_in_both_views():
+    camera = StereoCamera.default(W, H)
+    truth = _curve()
+    left = _shaft(_draw(truth), truth, 0.45, SHAFT_PX)
+    right = np.zeros_like(left)
+    right[:, :-25] = left[:, 25:]
+    ordering = order_stereo(left, right, truth[0], camera)
+    for sequence, visible, shift in (
+        (ordering.left_sequence, ordering.left, 0),
+        (ordering.right_sequence, ordering.right, 25),
+    ):
+        assert sequence.shape[1] == 3 and set(np.unique(sequence[:, 2])) == {0.0, 1.0}
+        seen = sequence[sequence[:, 2] == 0, :2]
+        # the visible points, plus the bridge's ends that still lie on the mask, as seen
+        kept = (seen[:, None] == visible[None]).all(axis=2).any(axis=0)
+        assert kept.all() and len(seen) - len(visible) < 12
+        mask = left if shift == 0 else right
+        flagged = sequence[sequence[:, 2] == 1, :2]
+        assert SHAFT_PX - 10 < len(flagged) < 1.5 * SHAFT_PX  # the thread crosses the shaft obliquely
+        u, v = np.rint(flagged).astype(int).T
+        assert not mask[v, u].any()  # not seen: off the mask
+        distance, _ = cKDTree(truth - [shift, 0]).query(flagged)
+        assert distance.max() < 3.5
+
+
+def test_a_thread_ending_where_another_strand_crosses_its_way_is_not_joined_to_it():
+    truth = _curve()[:900]  # ends at its real free end
+    end = truth[-1]
+    direction = (truth[-1] - truth[-20]) / np.hypot(*(truth[-1] - truth[-20]))
+    normal = np.array([-direction[1], direction[0]])
+    beyond = end + 90 * direction
+    crossing = np.linspace(beyond - 150 * normal, beyond + 150 * normal, 400)
+    mask = _draw(truth) | _draw(crossing)
+    result = order_sequence(mask, truth[0])
+    assert result.bridges == 0
+    assert np.hypot(*(result.points[-1] - end)) < 4.0
+
+
+def test_a_thread_ending_where_another_strand_starts_at_an_angle_is_not_joined_to_it():
+    truth = _curve()[:900]
+    end = truth[-1]
+    direction = (truth[-1] - truth[-20]) / np.hypot(*(truth[-1] - truth[-20]))
+    normal = np.array([-direction[1], direction[0]])
+    start = end + 90 * direction
+    # Another strand starting beyond the gap, facing it, but leaving 60 degrees off the way.
+    away = np.cos(np.radians(60)) * direction + np.sin(np.radians(60)) * normal
+    other = start + np.arange(0, 200)[:, None] * away
+    result = order_sequence(_draw(truth) | _draw(other), truth[0])
+    assert result.bridges == 0
+    assert np.hypot(*(result.points[-1] - end)) < 4.0
+
+
+def test_a_thread_ending_where_another_strand_starts_beside_its_line_is_not_joined_to_it():
+    truth = _curve()[:900]
+    end = truth[-1]
+    direction = (truth[-1] - truth[-20]) / np.hypot(*(truth[-1] - truth[-20]))
+    normal = np.array([-direction[1], direction[0]])
+    for side in (1, -1):
+        # Parallel to the thread's end, 90 px on and 30 px beside its line: joining it would take
+        # an S-bend that the thread's end does not announce.
+        start = end + 90 * direction + side * 30 * normal
+        other = start + np.arange(0, 200)[:, None] * direction
+        result = order_sequence(_draw(truth) | _draw(other), truth[0])
+        assert result.bridges == 0
+        assert np.hypot(*(result.points[-1] - end)) < 4.0
+
+
+def test_a_straight_continuation_beyond_the_reach_is_not_bridged():
+    truth = _curve()
+    mask = _shaft(_draw(truth), truth, 0.45, 200)  # 200 px hidden: beyond occluder_reach_px
+    result = order_sequence(mask, truth[0])
+    assert result.bridges == 0 and not result.bridged.any()
+
+
+def test_flagged_sequence_puts_the_bridged_stretch_back_between_its_ends():
+    points = np.column_stack([np.arange(10.0), np.zeros(10)])
+    bridged = np.zeros(10, bool)
+    bridged[4:7] = True
+    visible = points[~bridged]
+    flagged = flagged_sequence(visible, points, bridged)
+    np.testing.assert_array_equal(flagged[:, :2], points)
+    np.testing.assert_array_equal(flagged[:, 2], bridged.astype(float))
+    # A stretch whose ends no longer follow each other (replaced by the other view) stays out.
+    spliced = np.vstack([visible[:4], [[3.5, 1.0]], visible[4:]])
+    assert flagged_sequence(spliced, points, bridged)[:, 2].sum() == 0
+
+
+def test_end_direction_measures_the_tangent_and_curvature_of_an_arc():
+    radius = 80.0
+    angle = np.linspace(0, 0.6, 60)
+    arc = np.column_stack([radius * np.sin(angle), radius * (1 - np.cos(angle))])
+    tangent, curvature = end_direction(arc)
+    np.testing.assert_allclose(tangent, [np.cos(0.6), np.sin(0.6)], atol=0.01)
+    assert abs(curvature * radius - 1) < 0.15

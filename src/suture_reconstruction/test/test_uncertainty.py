@@ -1,0 +1,119 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The grasp point's uncertainty and the refusals it grounds (suture_reconstruction.uncertainty)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suture_common.camera import StereoCamera
+from suture_reconstruction import (
+    GraspNotSeenError,
+    ReconstructionParams,
+    UncertainGraspError,
+    reconstruct,
+)
+
+
+def arc_of_points(sequence: np.ndarray, camera, curve: np.ndarray, view: str) -> np.ndarray:
+    """(N,) 3D arc length (m) from the tip of the curve sample each sequence point shows."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    uv = camera.project(curve, view)
+    nearest = np.argmin(np.linalg.norm(sequence[:, None, :2] - uv[None, ::4], axis=2), axis=1) * 4
+    return arc[nearest]
+
+
+def thread_at(heading_deg: float) -> np.ndarray:
+    """A gently bent 90 mm thread ``heading_deg`` off the image rows, 90-100 mm away (m, every 0.05 mm)."""
+    s = np.arange(0.0, 0.09, 5e-5)
+    heading = np.radians(heading_deg) + 0.05 * np.sin(2 * np.pi * s / 0.09)
+    xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * 5e-5, axis=0)
+    xy -= xy.mean(axis=0)
+    return np.column_stack([xy, 0.095 + 0.1 * xy[:, 0]])
+
+
+def sequence_of(camera, curve: np.ndarray, view: str, rng: np.random.Generator) -> np.ndarray:
+    """The view's sequence of ``curve``: every 1 px from the tip, 0.3 px of noise."""
+    uv = camera.project(curve, view)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    s = np.arange(0.0, arc[-1], 1.0)
+    sequence = np.column_stack([np.interp(s, arc, uv[:, 0]), np.interp(s, arc, uv[:, 1])])
+    return sequence + rng.normal(0.0, 0.3, sequence.shape)
+
+
+def test_a_good_grasp_is_published_with_a_small_uncertainty(make_scene):
+    scene = make_scene("curved", seed=3)
+    result = reconstruct(scene.left, scene.right, scene.camera)
+    assert np.linalg.norm(result.grasp_position - scene.grasp) < 0.002
+    assert 0 < result.grasp_uncertainty_mm < 2.0
+    assert result.uncertainty.grasp_not_seen == ()
+    assert result.path_not_seen.shape == (len(result.path),) and not result.path_not_seen.any()
+
+
+def test_a_thread_along_the_image_rows_is_less_certain_and_refused_below_its_uncertainty(make_scene):
+    rows = make_scene("rows", seed=1)
+    steep = make_scene("curved", seed=3)
+    rows_mm = reconstruct(rows.left, rows.right, rows.camera).uncertainty
+    steep_mm = reconstruct(steep.left, steep.right, steep.camera).uncertainty
+    assert rows_mm.row_angle_deg < 3 and steep_mm.row_angle_deg > 20
+    assert rows_mm.conditioning_mm > 5 * steep_mm.conditioning_mm
+    strict = ReconstructionParams(max_grasp_uncertainty_mm=0.5 * (rows_mm.total_mm + steep_mm.total_mm))
+    with pytest.raises(UncertainGraspError, match="image rows") as refused:
+        reconstruct(rows.left, rows.right, rows.camera, strict)
+    assert refused.value.uncertainty.total_mm == pytest.approx(rows_mm.total_mm)
+    reconstruct(steep.left, steep.right, steep.camera, strict)  # not refused
+
+
+def test_views_that_disagree_make_the_grasp_uncertain():
+    """A stretch of the right sequence 8 px off its epipolar rows (no partner in the left view):
+    the grasp lands 15-20 mm off, and the path's distance from the right sequence says so."""
+    camera = StereoCamera.default(640, 480)
+    rng = np.random.default_rng(3)
+    curve = thread_at(30.0)
+    left, right = (sequence_of(camera, curve, view, rng) for view in ("left", "right"))
+    assert reconstruct(left, right, camera).grasp_uncertainty_mm < 3.0
+    arc = arc_of_points(right, camera, curve, "right")
+    right[(arc > 0.03) & (arc < 0.045), 1] += 8.0
+    with pytest.raises(UncertainGraspError, match="views disagree") as refused:
+        reconstruct(left, right, camera)
+    assert refused.value.uncertainty.residual_px > 4.0
+
+
+def flagged_gap(scene, start: float, end: float) -> tuple[np.ndarray, np.ndarray]:
+    """Both sequences as (N, 3) with the points showing arc ``start``-``end`` (m) flagged not seen."""
+    out = []
+    for view, sequence in (("left", scene.left), ("right", scene.right)):
+        arc = arc_of_points(sequence, scene.camera, scene.path, view)
+        out.append(np.column_stack([sequence, ((arc > start) & (arc < end)).astype(float)]))
+    return out[0], out[1]
+
+
+def test_a_grasp_point_on_a_stretch_not_seen_is_refused(make_scene):
+    scene = make_scene("curved", seed=3)
+    left, right = flagged_gap(scene, 0.045, 0.056)
+    with pytest.raises(GraspNotSeenError, match="left and right views do not see"):
+        reconstruct(left, right, scene.camera)
+    # Removed instead of flagged: a jump across the gap, the same refusal.
+    with pytest.raises(GraspNotSeenError):
+        reconstruct(left[left[:, 2] == 0, :2], right[right[:, 2] == 0, :2], scene.camera)
+    # Not refused on request; the path says where it is not seen, the uncertainty counts the arc.
+    result = reconstruct(left, right, scene.camera, ReconstructionParams(refuse_unseen_grasp=False))
+    assert result.uncertainty.grasp_not_seen == ("left", "right")
+    arc = np.linspace(0.0, result.length, len(result.path))
+    assert result.path_not_seen[(arc > 0.047) & (arc < 0.054)].all()
+    assert not result.path_not_seen[(arc < 0.04) | (arc > 0.062)].any()
+    assert result.uncertainty.not_seen_arc_mm == pytest.approx(5.0, abs=1.5)
+
+
+def test_a_gap_before_the_grasp_point_is_not_a_refusal(make_scene):
+    scene = make_scene("curved", seed=3)
+    left, right = flagged_gap(scene, 0.02, 0.03)
+    result = reconstruct(left, right, scene.camera)
+    assert result.uncertainty.grasp_not_seen == ()
+    assert result.uncertainty.not_seen_arc_mm == pytest.approx(10.0, abs=2.0)
+    assert result.uncertainty.not_seen_mm > 1.0
+
+
+def test_the_threshold_is_checked():
+    with pytest.raises(ValueError, match="max_grasp_uncertainty_mm"):
+        ReconstructionParams(max_grasp_uncertainty_mm=0.0)
