@@ -9,7 +9,8 @@ Shapes and units: masks are (H, W) uint8 (0/255) or bool; pixels are (u, v) =
 Pipeline per view: :func:`suture_ordering.cleaning.clean_mask` (holes, specks),
 cut tip (:mod:`suture_ordering.tip`), then the search of the paper's Section II.B
 (:mod:`suture_ordering.search`). The right view's tip follows from the left one
-(same row, disparity in the range of ``min_depth_m``..``max_depth_m``).
+(same row, disparity in the range of ``min_depth_m``..``max_depth_m``). A cut end that curls
+into a hook or hairpin starts with a walk through the hook (:mod:`suture_ordering.hooks`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import numpy as np
 
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
-from suture_ordering.errors import InvalidInputError, OrderingError
+from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError
+from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
@@ -120,8 +122,11 @@ def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Pre
     return _Prepared(clean, scaled, Searcher(clean, params, scaled))
 
 
-def _search(prepared: _Prepared, tip: np.ndarray, source: str, started: float) -> OrderingResult:
-    found = prepared.searcher.run(tip)
+def _search(
+    prepared: _Prepared, tip: np.ndarray, source: str, started: float, hook: HookStart | None = None
+) -> OrderingResult:
+    found = prepared.searcher.run(tip, hook)
+    tip = tip if hook is None else hook.points[0]
     return OrderingResult(
         points=found.points,
         bridged=found.bridged,
@@ -151,7 +156,9 @@ def order_sequence(
         Every thread pixel of the view.
     tip : (2,) float (u, v) or None
         A pixel near the cut tip (within ``params.tip_radius_px``); the search starts at the
-        free end nearest to it. None: the automatic rule of :mod:`suture_ordering.tip`.
+        free end nearest to it. A cut tip inside a hook or hairpin (no free end there, or the
+        nearest one is the hook's bend) starts with a walk through the hook from the pixel
+        (:mod:`suture_ordering.hooks`). None: the automatic rule of :mod:`suture_ordering.tip`.
     params : OrderingParams, optional
     view : str, optional
         'left' or 'right', only used to prefix error messages.
@@ -171,18 +178,31 @@ def order_sequence(
 
 def _order_view(
     mask: np.ndarray, tip: np.ndarray | None, params: OrderingParams, view: str | None
-) -> tuple[OrderingResult, _Prepared]:
+) -> tuple[OrderingResult, _Prepared, bool]:
+    """One view's ordering, its prepared mask, and whether it started through a hook."""
     started = time.perf_counter()
     if tip is not None:  # reject a bad hint before spending time on the mask
         shape = np.shape(mask)
         if len(shape) == 2:
             check_hint(tip, shape[1], shape[0], view)
     prepared = _prepare(mask, params, view)
+    clean, scaled = prepared.clean.mask, prepared.scaled
     if tip is None:
-        start, source = automatic_tip(prepared.clean.mask, prepared.scaled.tip_radius, view), "automatic"
-    else:
-        start, source = tip_from_hint(prepared.clean.mask, tip, prepared.scaled.tip_radius, view), "hint"
-    return _search(prepared, start, source, started), prepared
+        start = automatic_tip(clean, scaled.tip_radius, view)
+        return _search(prepared, start, "automatic", started), prepared, False
+    # A cut tip inside a hook (no free end there, or the free end is the hook's bend).
+    try:
+        start = tip_from_hint(clean, tip, scaled.tip_radius, view)
+    except NoFreeEndError:
+        hook = hook_start(clean, tip, scaled)
+        if hook is None:
+            raise
+        return _search(prepared, tip, "hint", started, hook), prepared, True
+    result = _search(prepared, start, "hint", started)
+    hook = hook_after_search(clean, tip, start, result.points, scaled)
+    if hook is None:
+        return result, prepared, False
+    return _search(prepared, tip, "hint", started, hook), prepared, True
 
 
 def order_stereo(
@@ -286,6 +306,40 @@ def order_stereo(
     return ordering
 
 
+def _right_view(
+    prepared: _Prepared,
+    left_prepared: _Prepared,
+    left_tip: np.ndarray,
+    left_hooked: bool,
+    disparity_range: tuple[float, float],
+    started: float,
+) -> OrderingResult:
+    """The right view's ordering from the left tip: the free end on its epipolar band, or,
+    when the left tip lies in a hook or the band has no free end, through the hook at the
+    pixel that the left tip's neighbourhood matches (:func:`suture_ordering.hooks.stereo_tip`)."""
+    clean, scaled = prepared.clean.mask, prepared.scaled
+    try:
+        start = right_tip(clean, left_tip, disparity_range, scaled.row_tolerance, scaled.tip_radius)
+        missing = None
+    except NoFreeEndError as error:
+        start, missing = None, error
+    if start is None or left_hooked:
+        guess = stereo_tip(
+            left_prepared.clean.mask, clean, left_tip, disparity_range, scaled.row_tolerance, scaled
+        )
+        if start is None and guess is not None and not on_mask(clean, guess):
+            guess = None  # the tip is missing from this mask, not inside a stroke
+        # Without a free end on the band, any walk from the matched pixel out of the window.
+        hook = None if guess is None else hook_start(clean, guess, scaled, require_return=start is not None)
+        if hook is not None:
+            return _search(prepared, hook.points[0], "epipolar", started, hook)
+        if start is None:
+            raise missing  # type: ignore[misc]
+    result = _search(prepared, start, "epipolar", started)
+    hook = hook_after_search(clean, start, start, result.points, scaled)
+    return result if hook is None else _search(prepared, start, "epipolar", started, hook)
+
+
 def _length(sequence: np.ndarray) -> float:
     return max(float(arc_length(sequence)[-1]), 1e-9)
 
@@ -298,16 +352,12 @@ def _order_pair(
     params: OrderingParams,
 ) -> StereoOrdering:
     """:func:`order_stereo` of one pair of masks (of the camera's size)."""
-    left, left_prepared = _order_view(left_mask, tip_hint, params, "left")
+    left, left_prepared, left_hooked = _order_view(left_mask, tip_hint, params, "left")
     started = time.perf_counter()
     right_prepared = _prepare(right_mask, params, "right")
     d_min = float(camera.disparity(params.max_depth_m))
     d_max = float(camera.disparity(params.min_depth_m))
-    scaled = right_prepared.scaled
-    start = right_tip(
-        right_prepared.clean.mask, left.tip, (d_min, d_max), scaled.row_tolerance, scaled.tip_radius
-    )
-    right = _search(right_prepared, start, "epipolar", started)
+    right = _right_view(right_prepared, left_prepared, left.tip, left_hooked, (d_min, d_max), started)
     # Where one view's search stopped at a gap and the other's went on, follow the other view.
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
     sequences, filled = [], []

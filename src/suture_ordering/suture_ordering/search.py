@@ -20,6 +20,7 @@ ambiguous is described in the module that makes it (and tested in ``test/test_se
 * :mod:`suture_ordering.occluders`: wider gaps, where an instrument lies across the thread;
 * :mod:`suture_ordering.junctions`: crossings, the thread's own loops, touching threads;
 * :mod:`suture_ordering.loops`: leaving a loop across the first pass;
+* :mod:`suture_ordering.hooks`: the start through a hook at the cut tip;
 * :mod:`suture_ordering.ending`: termination and the free end;
 * :mod:`suture_ordering.tuning`: Eq. (5) over the grid of Eq. (7);
 * :mod:`suture_ordering.geometry`: angles, bends and the Hermite curve of a smooth step.
@@ -45,6 +46,7 @@ import numpy as np
 from suture_ordering.cleaning import CleanMask
 from suture_ordering.context import SearchContext
 from suture_ordering.ending import append_tail, end_status
+from suture_ordering.hooks import HookStart, follow
 from suture_ordering.loops import across_own_path
 from suture_ordering.nodes import Candidates, MaskReader
 from suture_ordering.occluders import across_occluder
@@ -93,12 +95,16 @@ class Searcher:
             thickness=max(1, round(2 * scaled.detect_radius)),
         )
 
-    def run(self, tip: np.ndarray) -> SearchResult:
-        """Order the thread from ``tip`` ((2,) float (u, v), a free end on the mask)."""
+    def run(self, tip: np.ndarray, hook: HookStart | None = None) -> SearchResult:
+        """Order the thread from ``tip`` ((2,) float (u, v), a free end on the mask), or along
+        ``hook`` (a walk through a hook from the tip, :mod:`suture_ordering.hooks`) and on."""
         context = self.context
         grid = context.tuning.grid
+        start = np.asarray(tip, float) if hook is None else hook.points[0]
         consumed = np.zeros(context.reader.mask.shape, dtype=np.uint8)  # calloc'd: no blank copy
-        root = Branch(rows=np.arange(len(grid)), consumed=consumed, vertices=[np.asarray(tip, float)])
+        root = Branch(rows=np.arange(len(grid)), consumed=consumed, vertices=[start])
+        if hook is not None:
+            follow(context, root, hook)
         pending = [root]
         finished: list[Branch] = []
         forks = 0

@@ -29,6 +29,7 @@ from suture_ordering import (
     order_stereo,
 )
 from suture_ordering.stereo_fill import splice_skipped_stretch
+from suture_ordering.tip import tip_from_hint
 
 W, H = 640, 480
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
@@ -520,3 +521,64 @@ def test_a_predicted_mask_is_followed_round_a_small_loop_entered_tangentially():
     mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
     result = order_sequence(mask, stored["hint"])
     check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
+
+
+# --------------------------------------------------------------------------- hooks at the cut tip
+
+
+def curve_from_curvature(
+    start: tuple[float, float], heading: float, pieces: list[tuple[float, float]]
+) -> np.ndarray:
+    """(N, 2) points 0.5 px apart from ``start`` along ``pieces`` of (length px, curvature 1/px)."""
+    step = 0.5
+    kappa = np.concatenate([np.full(round(length / step), k) for length, k in pieces])
+    angle = heading + np.concatenate([[0.0], np.cumsum(kappa * step)])
+    offsets = np.cumsum(np.column_stack([np.cos(angle), np.sin(angle)]) * step, axis=0)
+    return np.vstack([start, np.asarray(start) + offsets[:-1]])
+
+
+def hairpin() -> np.ndarray:
+    """Tip at (300, 240); its arm runs left 60 px to a bend of radius 1.5 px and comes back
+    1.5 px beside it (the arms merge into one stroke), passes the tip and goes on 260 px."""
+    arm = line((300, 240), (240, 240))
+    angle = np.linspace(-math.pi / 2, -3 * math.pi / 2, 12)
+    bend = np.column_stack([240 + 1.5 * np.cos(angle), 241.5 + 1.5 * np.sin(angle)])
+    return np.vstack([arm, bend, line((240, 243), (560, 243))])
+
+
+def test_hairpin_with_merged_arms_is_ordered_from_the_tip_inside_the_stroke():
+    truth = hairpin()
+    mask = draw([truth], width=2)
+    hint = truth[0] + (1.0, 1.0)
+    with pytest.raises(NoFreeEndError):  # the tip is no free end of the mask
+        tip_from_hint(mask > 0, hint, 12.0)
+    result = order_sequence(mask, hint)
+    check_follows(result.points, truth, tolerance=3.0)  # the merged stroke's centre: 1.5 px off
+    assert result.points[:, 0].min() < 245  # to the bend (its apex at 238.5) before coming back
+    assert result.points[-1, 0] > 550
+
+
+def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm():
+    """Tip arm 25 px, a loop of radius 8 px turning by 230 degrees, then straight across the
+    tip arm 8 px from the tip and on."""
+    radius, beta = 8.0, math.radians(50)
+    to_line = radius * (1 + math.cos(beta)) / math.sin(beta)
+    arm = 8.0 + radius * math.sin(beta) + math.cos(beta) * to_line
+    truth = curve_from_curvature(
+        (300.0, 240.0), math.pi, [(arm, 0.0), ((math.pi + beta) * radius, 1 / radius), (260.0, 0.0)]
+    )
+    result = order_sequence(draw([truth], width=2), truth[0])
+    check_follows(result.points, truth)
+    # Round the loop first: the sequence reaches the loop's far side before the long thread.
+    far_side = int(np.argmin(result.points[:, 0]))
+    assert result.points[far_side, 0] < 300 - arm - radius + 2
+    assert np.hypot(*(result.points[-1] - truth[-1])) < 4
+
+
+def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():
+    truth = hairpin()
+    left = draw([truth], width=2)
+    right = np.roll(left, -26, axis=1)
+    ordering = order_stereo(left, right, truth[0] + (1.0, -1.0), StereoCamera.default(640, 480))
+    check_follows(ordering.left, truth, tolerance=3.0)
+    check_follows(ordering.right, truth - (26.0, 0.0), tolerance=3.0)

@@ -1,0 +1,493 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The start of a thread whose cut end curls into a hook or hairpin: a walk from the cut tip
+through the hook to where the thread leaves it, handed to the search of
+:mod:`suture_ordering.search`.
+
+A cut end that bends back on itself hides its tip from the search. The tip arm and the arm
+coming back lie side by side and merge into one stroke of the mask, so that the tip sits in the
+stroke's interior and the mask's free end nearest to it is the bend; or the thread crosses its
+tip arm and closes a small loop next to the tip, or the tip sits at that crossing. The thread
+runs from the tip along its arm to the bend, back along the other arm past the tip, and on;
+over a merged stretch the sequence passes twice.
+
+The walk follows the mask's skeleton within ``HOOK_WINDOW`` RoI radii Υ of the tip
+(:func:`hook_walk`). The skeleton becomes a graph of branches between free ends, junctions,
+the tip and the window's rim. A walk starts at the tip (or at a free end within ``NEAR`` px of
+it), ends on the rim, passes every branch of the hook (each at most twice; a branch shorter
+than ``SPUR`` px to a free end is a spur of the thinning and may be left out), turns back only
+at free ends (at the mask's end, past the skeleton's), and goes on at a junction through any
+branch. Of all such walks the one that turns least where it passes a junction or the tip
+wins, then the shortest: each turn is the angle between the chords ``step_radius`` px along
+the walk before and after the pass, so a crossing is crossed straight and a loop is gone round
+the way the tip arm enters it. The search then starts from the walk's end with the walk as its
+path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
+track.
+
+When (:func:`hook_start`, :func:`hook_after_search`): a hint with no free end within the tip
+radius; or, after the search from the free end nearest to the hint, when that end lies farther
+than ``NEAR`` px from the hint, when the search left pixels of the tip's thread near the tip
+unvisited (:func:`skipped_near_tip`), or when it came back near the tip to where it had passed.
+A walk is taken when it returns to a place it passed (a hook); where the search left pixels
+unvisited, any walk out of the window is.
+
+Right view (:func:`stereo_tip`): a cut tip inside a hook is no free end on the epipolar band
+either. The disparity of the tip's neighbourhood is the shift along the row that lays the
+left mask's window around the left tip best onto the right mask, within the disparity range;
+the right view's walk starts at the shifted left tip. It is used when the left view started
+through a hook, and when the band holds no free end but the shifted tip lies on the mask.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
+from skimage.morphology import skeletonize
+
+from suture_ordering.context import SearchContext
+from suture_ordering.params import ScaledParams
+from suture_ordering.path import Branch, advance
+from suture_ordering.tip import extend_to_end, free_ends
+
+#: At most this many branches in a hook's graph (more: not a hook; the walk is not searched).
+MAX_BRANCHES = 12
+#: Walks longer than this many branch passes are not searched.
+MAX_PASSES = 2 * MAX_BRANCHES + 2
+#: The walks compared, and the search for them, are bounded (a hook has a handful).
+MAX_WALKS = 200
+MAX_CALLS = 20000
+#: Points of the walk averaged (a moving average along it).
+SMOOTHING = 7
+#: The walk's window: this many RoI radii Υ around the tip.
+HOOK_WINDOW = 3.0
+#: Branches to a free end shorter than this (px at 640 px) are thinning spurs.
+SPUR = 3.0
+#: A free end this near (px at 640 px) to the tip's pixel is the cut tip.
+NEAR = 5.0
+#: Spacing (px) of the search's vertices along the walk.
+DENSE = 1.0
+#: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
+SKIPPED = 6.0
+_OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+@dataclass
+class _Branch:
+    """A skeleton branch: its pixels (K, 2) (u, v) from node ``a`` to node ``b``."""
+
+    pixels: np.ndarray
+    a: int
+    b: int
+
+    @property
+    def length(self) -> float:
+        return float(np.hypot(*np.diff(self.pixels, axis=0).T).sum()) if len(self.pixels) > 1 else 0.0
+
+
+@dataclass
+class _Graph:
+    branches: list[_Branch]
+    kind: dict[int, str]  # node -> 'end', 'junction', 'rim', 'tip'
+    tip: int
+
+
+def _skeleton_graph(skeleton: np.ndarray, tip: np.ndarray, rim: np.ndarray) -> _Graph | None:
+    """The branches of ``skeleton`` ((H, W) bool), split at its pixel ``tip`` ((2,) int (u, v));
+    ``rim``: (H, W) bool, where a branch ending there leaves the window. None: no hook's graph
+    (more than :data:`MAX_BRANCHES` branches, or a ring without junctions)."""
+    v, u = np.nonzero(skeleton)
+    n = len(u)
+    index = np.full(skeleton.shape, -1, dtype=np.int64)
+    index[v, u] = np.arange(n)
+    padded = np.pad(index, 1, constant_values=-1)
+    rows, cols, weights = [], [], []
+    for dv, du in _OFFSETS:
+        other = padded[1 + v + dv, 1 + u + du]
+        ok = other >= 0
+        if dv and du:  # a diagonal link beside a 4-neighbour path is no branch of its own
+            ok &= (padded[1 + v, 1 + u + du] < 0) & (padded[1 + v + dv, 1 + u] < 0)
+        rows.append(np.flatnonzero(ok))
+        cols.append(other[ok])
+        weights.append(np.full(int(ok.sum()), math.hypot(dv, du)))
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    degree = np.bincount(np.concatenate([r, c]), minlength=n)
+    tip_index = int(index[tip[1], tip[0]])
+    # Junction pixels (3+ neighbours) grouped into clusters; the tip is a node of its own.
+    # A junction is the skeleton's pixels within one pixel of a pixel with 3+ neighbours
+    # (thinning leaves a crossing as a knot of such pixels, with stubs a pixel long).
+    junction_image = np.zeros(skeleton.shape, np.uint8)
+    junction_image[v[degree >= 3], u[degree >= 3]] = 1
+    junction_image = cv2.dilate(junction_image, np.ones((3, 3), np.uint8)) & skeleton.astype(np.uint8)
+    junction_image[tip[1], tip[0]] = 0
+    special = junction_image[v, u] > 0
+    count, labels = cv2.connectedComponents(junction_image, connectivity=8)
+    special[tip_index] = True
+    node_of = np.full(n, -1, dtype=np.int64)
+    node_of[special] = labels[v[special], u[special]] - 1
+    tip_node = count - 1
+    node_of[tip_index] = tip_node
+    kind = {k: "junction" for k in range(count - 1)}
+    kind[tip_node] = "tip"
+    # Branches: components of the remaining pixels, each ordered by the shortest path along it.
+    plain = ~special
+    inner = plain[r] & plain[c]
+    graph = coo_matrix((w[inner], (r[inner], c[inner])), shape=(n, n)).tocsr()
+    graph = graph + graph.T
+    inner_degree = np.asarray(graph.getnnz(axis=1)).ravel()
+    _, label_of = connected_components(graph, directed=False)
+    label_of = np.where(plain, label_of + 1, 0)
+    count_b = len(np.unique(label_of[plain])) + 1
+    if count_b - 1 > MAX_BRANCHES:
+        return None
+    label_of[plain] = np.unique(label_of[plain], return_inverse=True)[1] + 1
+    across = special[r] != special[c]  # a plain pixel next to a node's pixel
+    contact_plain = np.where(plain[r[across]], r[across], c[across])
+    contact_node = np.where(plain[r[across]], c[across], r[across])
+    pixels_uv = np.column_stack([u, v])
+    branches: list[_Branch] = []
+    for label in range(1, count_b):
+        members = np.flatnonzero(label_of == label)
+        ends = members[inner_degree[members] <= 1]
+        if len(ends) == 0 or len(ends) > 2:  # a ring without junctions, or not a thin line
+            return None
+        first, last = int(ends[0]), int(ends[-1])
+        _, predecessors = dijkstra(graph, indices=first, return_predecessors=True)
+        path = [last]
+        while path[-1] != first and predecessors[path[-1]] >= 0:
+            path.append(int(predecessors[path[-1]]))
+        path.reverse()
+        pixels = pixels_uv[path]
+        ends_nodes: list[list[tuple[int, int]]] = []
+        for end_pixel in (first, last):
+            near_pixels = contact_node[contact_plain == end_pixel]
+            by_node = dict(zip(node_of[near_pixels].tolist(), near_pixels.tolist(), strict=True))
+            ends_nodes.append(list(by_node.items()))
+        if first == last and len(ends_nodes[0]) > 1:  # one pixel between two nodes
+            ends_nodes = [ends_nodes[0][:1], ends_nodes[0][1:2]]
+        elif first == last:
+            ends_nodes[1] = []
+        nodes = []
+        for side, (end_pixel, touching) in enumerate(zip((first, last), ends_nodes, strict=True)):
+            if touching:
+                node, joint = touching[0]
+                nodes.append(node)
+                pixels = np.vstack([pixels_uv[joint], pixels] if side == 0 else [pixels, pixels_uv[joint]])
+            else:
+                node = len(kind)
+                kind[node] = "rim" if rim[v[end_pixel], u[end_pixel]] else "end"
+                nodes.append(node)
+        branches.append(_Branch(pixels, nodes[0], nodes[1]))
+    # Nodes next to each other with no plain pixel between them.
+    both = special[r] & special[c] & (node_of[r] != node_of[c])
+    for a, b in zip(r[both], c[both], strict=True):
+        branches.append(_Branch(pixels_uv[[a, b]], int(node_of[a]), int(node_of[b])))
+    if len(branches) > MAX_BRANCHES:
+        return None
+    return _Graph(branches, kind, tip_node)
+
+
+def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
+    """Every walk from the tip to the rim that passes each of the hook's branches once or twice
+    and turns back only at free ends (at most :data:`MAX_WALKS` of them): lists of (branch
+    index, reversed)."""
+    branches = graph.branches
+    incident: dict[int, list[tuple[int, bool]]] = {}
+    for k, branch in enumerate(branches):
+        incident.setdefault(branch.a, []).append((k, False))
+        incident.setdefault(branch.b, []).append((k, True))
+    kinds = [(graph.kind[b.a], graph.kind[b.b]) for b in branches]
+    required = [
+        k
+        for k, b in enumerate(branches)
+        if "rim" not in kinds[k]
+        and not ("end" in kinds[k] and b.length < spur and graph.tip not in (b.a, b.b))
+    ]
+    found: list[list[tuple[int, bool]]] = []
+    uses = [0] * len(branches)
+    calls = [0]
+
+    def extend(node: int, walk: list[tuple[int, bool]]) -> None:
+        calls[0] += 1
+        if len(found) >= MAX_WALKS or calls[0] > MAX_CALLS or len(walk) > MAX_PASSES:
+            return
+        if graph.kind[node] == "rim":
+            if all(uses[k] for k in required):
+                found.append(list(walk))
+            return
+        if walk and graph.kind[node] == "end":
+            options = [(walk[-1][0], not walk[-1][1])]
+        else:
+            options = [o for o in incident.get(node, []) if not walk or o != (walk[-1][0], not walk[-1][1])]
+        for k, rev in options:
+            if uses[k] >= 2:
+                continue
+            uses[k] += 1
+            walk.append((k, rev))
+            extend(branches[k].a if rev else branches[k].b, walk)
+            walk.pop()
+            uses[k] -= 1
+
+    extend(graph.tip, [])
+    return found
+
+
+def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
+    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
+    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
+    pieces, passes = [], []
+    count = 0
+    for position, (k, rev) in enumerate(walk):
+        pixels = graph.branches[k].pixels
+        pixels = pixels[::-1] if rev else pixels
+        if pieces and np.array_equal(pieces[-1][-1], pixels[0]):
+            pixels = pixels[1:]
+        if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
+            passes.append(count - 1)
+        pieces.append(pixels)
+        count += len(pixels)
+    path = np.vstack(pieces).astype(np.float64)
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    at = along[passes]
+    before = path[passes] - path[np.searchsorted(along, np.maximum(at - reach, 0.0))]
+    after = path[np.minimum(np.searchsorted(along, at + reach), len(path) - 1)] - path[passes]
+    norms = np.hypot(*before.T) * np.hypot(*after.T)
+    cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
+    turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
+    return float(turns.sum()), path
+
+
+def hook_walk(
+    mask: np.ndarray, tip: np.ndarray, window_radius: float, step: float, spur: float, near: float
+) -> tuple[np.ndarray, bool] | None:
+    """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
+    to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
+    does not leave the window, or the skeleton there is not a hook's).
+
+    ``mask``: (H, W) bool or 0/1, the cleaned mask; ``step``: chord length (px) of the turns;
+    ``spur``: branches to a free end shorter than this are thinning spurs; ``near``: a free end
+    this near to ``tip`` is the start. Also whether the walk comes back to a node it passed.
+    """
+    height, width = mask.shape
+    r = math.ceil(window_radius)
+    cu, cv = round(float(tip[0])), round(float(tip[1]))
+    u0, v0 = max(0, cu - r), max(0, cv - r)
+    u1, v1 = min(width, cu + r + 1), min(height, cv + r + 1)
+    window = np.asarray(mask[v0:v1, u0:u1], dtype=np.uint8)
+    yy, xx = np.mgrid[v0:v1, u0:u1]
+    inside = np.hypot(xx - cu, yy - cv) <= window_radius
+    window = window * inside.astype(np.uint8)
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    on = np.argwhere(window > 0)
+    if on.size == 0:
+        return None
+    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
+    own = pieces == pieces[nearest[0], nearest[1]]
+    skeleton = skeletonize(own)
+    sv, su = np.nonzero(skeleton)
+    if su.size < 2:
+        return None
+    distance = np.hypot(su + u0 - tip[0], sv + v0 - tip[1])
+    start = int(np.argmin(distance))
+    ends = free_ends(skeleton)
+    if len(ends):  # the cut tip at a free end next to the pixel: start there
+        gap = np.hypot(ends[:, 0] + u0 - tip[0], ends[:, 1] + v0 - tip[1])
+        if gap.min() <= near:
+            start = int(np.flatnonzero((su == ends[np.argmin(gap), 0]) & (sv == ends[np.argmin(gap), 1]))[0])
+    rim = (np.hypot(xx - cu, yy - cv) >= window_radius - 3) | (xx < 2) | (yy < 2)
+    rim |= (xx > width - 3) | (yy > height - 3)
+    graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
+    if graph is None:
+        return None
+    for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
+        for first, kind in ((True, graph.kind[branch.a]), (False, graph.kind[branch.b])):
+            if kind != "end" or branch.length < spur:
+                continue
+            end = branch.pixels[0] if first else branch.pixels[-1]
+            outer = extend_to_end(own, end.astype(np.float64), step)
+            reach = float(np.hypot(*(outer - end)))
+            if reach >= 1.0:
+                fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)
+                extra = end + fractions * (outer - end)
+                branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
+    walks = _walks(graph, spur)
+    if not walks:
+        return None
+    scored = []
+    for walk in walks:
+        turn, path = _turning(graph, walk, step)
+        scored.append((turn + 1e-3 * len(path), path))
+    best = min(range(len(scored)), key=lambda k: scored[k][0])
+    path = scored[best][1]
+    nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
+    revisits = len(set(nodes)) < len(nodes)
+    # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
+    # becomes the bend's centre.
+    path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
+    return path + np.array([u0, v0]), revisits
+
+
+@dataclass(frozen=True)
+class HookStart:
+    """The walk from the cut tip through a hook: ``points`` (N, 2) float64 (u, v) ~1 px apart,
+    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves."""
+
+    points: np.ndarray
+    width: float
+
+
+def hook_start(
+    mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams, require_return: bool = True
+) -> HookStart | None:
+    """The walk through a hook at ``tip`` ((2,) (u, v), a hint or a free end) in ``mask``
+    ((H, W) 0/1, the cleaned mask), or None when there is no hook there: the thread runs from
+    the tip straight out of the window (the search of :mod:`suture_ordering.search` orders it),
+    or the window holds no walk.
+
+    A hook is a walk that comes back to a place it has passed: a free end it turns back at
+    (the bend of merged arms) or a junction it passes twice (a loop). ``require_return=False``:
+    any walk out of the window is taken.
+    """
+    window = HOOK_WINDOW * scaled.roi_radius
+    found = hook_walk(mask, tip, window, float(scaled.step_radius), SPUR * scaled.scale, NEAR * scaled.scale)
+    if found is None:
+        return None
+    points, revisits = found
+    if require_return and not revisits:
+        return None
+    tail = np.rint(points[-max(2, len(points) // 3) :]).astype(int)
+    r = int(np.ceil(window)) + 2
+    u0, v0 = max(0, int(tip[0]) - r), max(0, int(tip[1]) - r)
+    patch = np.ascontiguousarray(mask[v0 : int(tip[1]) + r + 1, u0 : int(tip[0]) + r + 1], dtype=np.uint8)
+    depth = cv2.distanceTransform(patch, cv2.DIST_L2, 3)
+    inside = (tail[:, 0] - u0 >= 0) & (tail[:, 0] - u0 < patch.shape[1]) & (tail[:, 1] - v0 >= 0)
+    inside &= tail[:, 1] - v0 < patch.shape[0]
+    tail = tail[inside]
+    thread = float(np.median(depth[tail[:, 1] - v0, tail[:, 0] - u0])) if len(tail) else 1.0
+    return HookStart(points, max(1.0, 2.0 * thread - 1.0))
+
+
+def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
+    """Advance ``branch`` (at the walk's first point) along the walk: a vertex wherever the walk
+    has moved ``DENSE`` px from the last one (so the turn at a bend is kept), the last ``2 r_s``
+    px in steps of r_s so that the search goes on with the thread's track and turn."""
+    points = start.points
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    step = float(context.scaled.step_radius)
+    last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
+    for point in points[1:last_steps]:
+        if math.hypot(*(point - branch.vertices[-1])) >= DENSE:
+            advance(context, branch, point, start.width)
+    for mark in (along[-1] - step, along[-1]):
+        point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
+        if math.hypot(*(point - branch.vertices[-1])) >= 1.0:
+            advance(context, branch, point, start.width)
+
+
+def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
+    """Whether the ordered ``points`` ((N, 2) from the tip) leave pixels of the tip's thread
+    within the hook window unvisited (farther than the detection radius from them): an arm
+    or loop of a hook the search went past."""
+    r = int(np.ceil(HOOK_WINDOW * scaled.roi_radius))
+    height, width = mask.shape
+    cu, cv = round(float(tip[0])), round(float(tip[1]))
+    u0, v0 = max(0, cu - r), max(0, cv - r)
+    window = np.ascontiguousarray(
+        mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8
+    )
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    on = np.argwhere(window > 0)
+    if on.size == 0:
+        return False
+    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
+    thread = pieces == pieces[nearest[0], nearest[1]]
+    # The path visits the thread's whole cross-section: its half width plus the detection radius.
+    polyline = np.rint(points - np.array([u0, v0])).astype(np.int32)
+    on_window = (
+        (polyline >= 0).all(axis=1) & (polyline[:, 0] < window.shape[1]) & (polyline[:, 1] < window.shape[0])
+    )
+    depth = cv2.distanceTransform(window, cv2.DIST_L2, 3)
+    half = float(np.median(depth[polyline[on_window, 1], polyline[on_window, 0]])) if on_window.any() else 1.0
+    visited = np.zeros_like(window)
+    cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
+    inside = np.zeros_like(window)
+    cv2.circle(inside, (cu - u0, cv - v0), r - scaled.step_radius, 1, cv2.FILLED)
+    return int((thread & (visited == 0) & (inside > 0)).sum()) > SKIPPED * scaled.scale
+
+
+def hook_after_search(
+    mask: np.ndarray, hint: np.ndarray, tip: np.ndarray, points: np.ndarray, scaled: ScaledParams
+) -> HookStart | None:
+    """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
+    one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
+    tip in the stroke), the search came back near the tip to where it had passed, or it left
+    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`; then any walk out of
+    the window is taken). None: no hook; the search's sequence stands."""
+    far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
+    skipped = skipped_near_tip(mask, points, tip, scaled)
+    if not (far or skipped or _returns_near_tip(points, tip, scaled)):
+        return None
+    return hook_start(mask, hint, scaled, require_return=not skipped)
+
+
+def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
+    """Whether the ordered ``points`` come back, within the hook window, to within the
+    detection radius of a point passed at least 2 Υ of arc before."""
+    window = HOOK_WINDOW * scaled.roi_radius
+    distance = np.hypot(*(points - np.asarray(tip)).T)
+    outside = np.flatnonzero(distance > window)
+    near = points[: outside[0] if outside.size else len(points)]
+    if len(near) < 2:
+        return False
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(near, axis=0).T))])
+    gaps = np.hypot(*(near[:, None, :] - near[None, :, :]).transpose(2, 0, 1))
+    apart = np.abs(along[:, None] - along[None, :]) > 2 * scaled.roi_radius
+    return bool(np.any(apart & (gaps < max(1.0, scaled.detect_radius))))
+
+
+def stereo_tip(
+    left: np.ndarray,
+    right: np.ndarray,
+    left_tip: np.ndarray,
+    disparity_range: tuple[float, float],
+    row_tolerance: float,
+    scaled: ScaledParams,
+) -> np.ndarray | None:
+    """The right view's pixel of ``left_tip`` ((2,) (u, v)): the left tip shifted by the
+    disparity (and row offset, within ``row_tolerance``) that lays the left mask's window
+    around it (the hook window) best onto the right mask (most pixels in common); None when no
+    shift in the range lays any pixel onto the right mask."""
+    height, width = left.shape
+    r = math.ceil(HOOK_WINDOW * scaled.roi_radius)
+    u, v = round(float(left_tip[0])), round(float(left_tip[1]))
+    tu0, tu1 = max(0, u - r), min(width, u + r + 1)
+    tv0, tv1 = max(0, v - r), min(height, v + r + 1)
+    d_min = int(np.floor(disparity_range[0] - row_tolerance))
+    d_max = int(np.ceil(disparity_range[1] + row_tolerance))
+    t = int(np.ceil(row_tolerance))
+    iu0, iu1 = max(0, tu0 - d_max), min(width, tu1 - d_min)
+    iv0, iv1 = max(0, tv0 - t), min(height, tv1 + t)
+    template = np.asarray(left[tv0:tv1, tu0:tu1], dtype=np.float32)
+    image = np.asarray(right[iv0:iv1, iu0:iu1], dtype=np.float32)
+    if image.shape[0] < template.shape[0] or image.shape[1] < template.shape[1] or not template.any():
+        return None
+    score = cv2.matchTemplate(image, template, cv2.TM_CCORR)
+    dv = np.arange(score.shape[0])[:, None] + iv0 - tv0
+    score = score - 1e-3 * np.abs(dv)  # of equal overlaps, the nearest row
+    y, x = np.unravel_index(int(np.argmax(score)), score.shape)
+    if score[y, x] < 1.0:
+        return None
+    return np.asarray(left_tip, dtype=np.float64) + np.array([x + iu0 - tu0, y + iv0 - tv0], dtype=np.float64)
+
+
+def on_mask(mask: np.ndarray, point: np.ndarray, radius: float = 1.5) -> bool:
+    """Whether a pixel of ``mask`` lies within ``radius`` px of ``point`` ((2,) (u, v))."""
+    r = math.ceil(radius)
+    u, v = round(float(point[0])), round(float(point[1]))
+    rows, cols = np.nonzero(mask[max(0, v - r) : v + r + 1, max(0, u - r) : u + r + 1])
+    offsets = np.hypot(cols + max(0, u - r) - point[0], rows + max(0, v - r) - point[1])
+    return bool(np.any(offsets <= radius))
