@@ -33,15 +33,13 @@ class CleanMask:
     """A cleaned mask and the padded arrays the search reads.
 
     ``mask``: (H, W) uint8, 1 on the thread. ``padded`` and ``zone``: (H + 2 pad, W + 2 pad)
-    uint8, the mask and the mask dilated by the zone margin, 0 in the padding; ``sampled``:
-    ``padded`` as float32 for bilinear sampling. Pixel (u, v) of the image is
-    ``padded[v + pad, u + pad]``.
+    uint8, the mask and the mask dilated by the zone margin, 0 in the padding. Pixel (u, v)
+    of the image is ``padded[v + pad, u + pad]``.
     """
 
     mask: np.ndarray
     padded: np.ndarray
     zone: np.ndarray
-    sampled: np.ndarray
     pad: int
 
     @property
@@ -69,7 +67,7 @@ def as_binary_mask(mask: np.ndarray, view: str | None = None) -> np.ndarray:
             view,
         )
     binary = np.ascontiguousarray(binary)
-    if not binary.any():
+    if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError("mask is empty: no thread pixel (segmentation found no suture)", view)
     return binary
 
@@ -82,7 +80,9 @@ def clean_mask(
     ``pad`` is the padding in pixels (at least the farthest the search looks from a mask
     pixel). Raises InvalidInputError or EmptyMaskError (also when only specks remain).
     """
-    binary = as_binary_mask(mask, view).copy()
+    binary = as_binary_mask(mask, view)
+    if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
+        binary = binary.copy()
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is not None:
         parents = hierarchy[0][:, 3]
@@ -93,21 +93,24 @@ def clean_mask(
                     cv2.drawContours(binary, contours, index, 0, thickness=cv2.FILLED)
             elif cv2.contourArea(contour) <= scaled.max_hole_area:  # a small hole
                 cv2.drawContours(binary, contours, index, 1, thickness=cv2.FILLED)
-    if not binary.any():
+    if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError(
             f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view
         )
+    # The padded arrays are filled in place (fewer large temporaries to allocate per view).
+    height, width = binary.shape
+    inner = (slice(pad, pad + height), slice(pad, pad + width))
+    padded = np.zeros((height + 2 * pad, width + 2 * pad), dtype=np.uint8)
+    padded[inner] = binary
+    zone = np.zeros_like(padded)
     if zone_margin > 0:
         size = 2 * zone_margin + 1
-        zone = cv2.dilate(binary, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)))
+        cv2.dilate(binary, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)), dst=zone[inner])
     else:
-        zone = binary
-    border = cv2.BORDER_CONSTANT
-    padded = cv2.copyMakeBorder(binary, pad, pad, pad, pad, border, value=0)
+        zone[inner] = binary
     return CleanMask(
         mask=binary,
         padded=padded,
-        zone=cv2.copyMakeBorder(zone, pad, pad, pad, pad, border, value=0),
-        sampled=padded.astype(np.float32),
+        zone=zone,
         pad=pad,
     )

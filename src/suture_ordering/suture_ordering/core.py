@@ -108,7 +108,7 @@ class _Prepared:
 
 def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Prepared:
     binary = as_binary_mask(mask, view)
-    fraction = float(binary.mean())
+    fraction = np.count_nonzero(binary) / binary.size
     if fraction > params.max_mask_fraction:
         raise InvalidInputError(
             f"mask covers {100 * fraction:.0f} % of the image, more than max_mask_fraction "

@@ -2,7 +2,9 @@
 """Plane geometry of the ordering search: angles between directions, rotations, the bend of a
 connection and the cubic Hermite curve of a smooth step.
 
-Directions are (2,) or (k, 2) float arrays (u, v) in pixels; angles are radians.
+Directions are (2,) or (k, 2) float arrays (u, v) in pixels; angles are radians. The (2,)
+functions compute on Python floats (the same IEEE double arithmetic as numpy's, without the
+cost of numpy scalars): the search calls them at every step.
 """
 
 from __future__ import annotations
@@ -17,13 +19,16 @@ LINE_SHIFT = 4
 
 def signed_angle(a: np.ndarray, b: np.ndarray) -> float:
     """Angle (rad) that turns direction ``a`` into ``b``, in (-pi, pi]."""
-    return math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])
+    ax, ay = float(a[0]), float(a[1])
+    bx, by = float(b[0]), float(b[1])
+    return math.atan2(ax * by - ay * bx, ax * bx + ay * by)
 
 
 def rotate(v: np.ndarray, angle: float) -> np.ndarray:
     """(2,) ``v`` turned by ``angle`` (rad)."""
     c, s = math.cos(angle), math.sin(angle)
-    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+    x, y = float(v[0]), float(v[1])
+    return np.array([c * x - s * y, s * x + c * y])
 
 
 def turn_angles(direction: np.ndarray, heading: np.ndarray | None) -> np.ndarray:
@@ -32,7 +37,7 @@ def turn_angles(direction: np.ndarray, heading: np.ndarray | None) -> np.ndarray
         return np.zeros(len(direction))
     norm = np.sqrt((direction * direction).sum(axis=1) * float(heading @ heading))
     cos = (direction @ heading) / np.maximum(norm, 1e-12)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
+    return np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0))
 
 
 def bend(start: np.ndarray, t_start: np.ndarray, end: np.ndarray, t_end: np.ndarray) -> float:
@@ -57,5 +62,5 @@ def hermite(start: np.ndarray, end: np.ndarray, tangent0: np.ndarray, tangent1: 
 
 def fixed_point(point: np.ndarray) -> tuple[int, int]:
     """(2,) ``point`` in cv2's fixed-point coordinates (:data:`LINE_SHIFT` fractional bits)."""
-    scaled = np.rint(point * (1 << LINE_SHIFT)).astype(int)
-    return int(scaled[0]), int(scaled[1])
+    scale = 1 << LINE_SHIFT  # a power of two: the products are exact; round() is round-half-even
+    return round(float(point[0]) * scale), round(float(point[1]) * scale)

@@ -47,9 +47,12 @@ def at_junction(context: SearchContext, nodes: Candidates, width: float | None) 
     threads."""
     if width is None:
         return False
-    if np.any(nodes.width > context.params.wide_arc_factor * width):
+    if (nodes.width > context.params.wide_arc_factor * width).any():
         return True
-    return len(nodes.width) > 1 and float(np.ptp(nodes.position, axis=0).max()) > max(2.0, width)
+    if len(nodes.width) < 2:
+        return False
+    position = nodes.position
+    return float((position.max(axis=0) - position.min(axis=0)).max()) > max(2.0, width)
 
 
 def decided_across_junction(context: SearchContext, nodes: Candidates, width: float | None) -> bool:

@@ -48,6 +48,26 @@ def circle_samples(r: int) -> tuple[np.ndarray, np.ndarray]:
     return offsets, np.arange(n, dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class _Circle:
+    """What :meth:`MaskReader.nodes` needs of the circle of radius r, computed once per radius:
+    the samples of :func:`circle_samples`, their number n, the arc between two samples (px)
+    and the angle between two samples (rad)."""
+
+    offsets: np.ndarray
+    index: np.ndarray
+    n: int
+    spacing: float
+    angle_step: float
+
+
+@functools.lru_cache(maxsize=256)
+def _circle(r: int) -> _Circle:
+    offsets, index = circle_samples(r)
+    n = len(index)
+    return _Circle(offsets, index, n, 2 * math.pi * r / n, 2 * math.pi / n)
+
+
 @functools.lru_cache(maxsize=256)
 def chord_fractions(r: int) -> np.ndarray:
     """(1, r - 1, 1) fractions 1/r .. (r-1)/r: the 1 px spaced interior samples of a chord of length r."""
@@ -123,17 +143,18 @@ class MaskReader:
     def __init__(self, clean: CleanMask, wide_arc_factor: float, step_radius: int) -> None:
         self.image_shape = clean.shape
         self.pad = clean.pad
-        self.padded_width = clean.padded.shape[1]
+        self.padded_height, self.padded_width = clean.padded.shape
         self.mask = clean.padded
-        self.sampled = clean.sampled
         self.zone_flat = clean.zone.reshape(-1)
         self.wide_arc_factor = wide_arc_factor
         self.step_radius = step_radius
+        # (u, v) -> flat index of the padded arrays: u + W v, and the padding's share of it.
+        self._flat_weights = np.array([1, self.padded_width], dtype=np.intp)
+        self._flat_offset = self.pad * (1 + self.padded_width)
 
     def flat(self, points: np.ndarray) -> np.ndarray:
         """Flat indices into the padded arrays of (..., 2) float (u, v) points (rounded)."""
-        p = np.rint(points).astype(np.intp) + self.pad
-        return p[..., 1] * self.padded_width + p[..., 0]
+        return np.rint(points).astype(np.intp) @ self._flat_weights + self._flat_offset
 
     def nodes(self, vertex: np.ndarray, r: int, width: float | None) -> Nodes | None:
         """Centreline nodes on the circle of radius ``r`` around ``vertex`` (sub-pixel).
@@ -143,44 +164,76 @@ class MaskReader:
         With the thread's ``width`` known, a run wider than ``wide_arc_factor`` widths gives
         one node per edge, half a width inside it.
         """
-        offsets, index = circle_samples(r)
-        n = len(index)
-        where = offsets + (vertex + self.pad).astype(np.float32)
-        values = cv2.remap(self.sampled, where, None, cv2.INTER_LINEAR).reshape(-1)
-        k0 = int(np.argmin(values))
+        circle = _circle(r)
+        n = circle.n
+        centre = (vertex + self.pad).astype(np.float32)
+        values = self._bilinear(circle.offsets + centre, centre, r)
+        k0 = int(values.argmin())
         if values[k0] > 0.5:
             return None  # the circle lies wholly inside the mask: no thread structure
+        # Read from the emptiest sample on, so that no run wraps round the end.
         rolled = np.concatenate((values[k0:], values[:k0]))
         inside = rolled > 0.5
-        edges = np.flatnonzero(inside[1:] != inside[:-1]) + 1
-        if edges.size == 0:
+        edges = (inside[1:] != inside[:-1]).nonzero()[0].tolist()
+        if not edges:
             return None
-        if inside[-1]:
-            edges = np.append(edges, n)
-        lo, hi = edges[0::2] - 1, np.minimum(edges[1::2], n - 1)  # with the partial edge samples
-        weight = np.cumsum(rolled)
-        moment = np.cumsum(rolled * index)
-        mass = weight[hi] - weight[lo] + rolled[lo]
-        centre = (moment[hi] - moment[lo] + rolled[lo] * lo) / mass + k0
-        spacing = 2 * math.pi * r / n
-        widths = mass * spacing
-        if width is not None:
-            wide = widths > self.wide_arc_factor * width
-            if wide.any():
-                half = (mass[wide] - width / spacing) / 2
-                centre = np.concatenate((centre[~wide], centre[wide] - half, centre[wide] + half))
-                widths = np.concatenate((widths[~wide], widths[wide], widths[wide]))
-        angle = centre * (2 * math.pi / n)
-        position = vertex + r * np.column_stack((np.cos(angle), np.sin(angle)))
-        return Nodes(position, widths, r)
+        if inside[-1]:  # a run still open at the end closes on the last sample
+            edges.append(n - 2)
+        weight = rolled.cumsum()
+        moment = (rolled * circle.index).cumsum()
+        # Each run (a few per circle) on numpy scalars: float32 where the arrays are float32.
+        centres: list[float] = []
+        widths: list[np.float32] = []
+        split: list[tuple[float, np.float32, np.float32]] = []
+        for start, end in zip(edges[0::2], edges[1::2], strict=True):
+            lo, hi = start, end + 1  # with the partial edge samples
+            first = rolled[lo]
+            mass = weight[hi] - weight[lo] + first
+            middle = (float(moment[hi]) - float(moment[lo]) + float(first) * lo) / float(mass) + k0
+            arc = mass * circle.spacing
+            if width is not None and arc > self.wide_arc_factor * width:
+                split.append((middle, arc, (mass - width / circle.spacing) / 2))
+            else:
+                centres.append(middle)
+                widths.append(arc)
+        if split:  # one node per edge, half a width inside it
+            centres += [middle - float(half) for middle, _, half in split]
+            centres += [middle + float(half) for middle, _, half in split]
+            widths += [arc for _, arc, _ in split] * 2
+        angle = np.array(centres) * circle.angle_step
+        position = np.empty((len(angle), 2))
+        position[:, 0] = np.cos(angle)
+        position[:, 1] = np.sin(angle)
+        position *= r
+        position += vertex
+        widths_array = np.array(widths, dtype=np.float32)
+        return Nodes(position, widths_array, r)
+
+    def _bilinear(self, where: np.ndarray, centre: np.ndarray, reach: int) -> np.ndarray:
+        """(n,) the mask sampled bilinearly (cv2.remap) at ``where``, (n, 1, 2) float32 points of
+        the padded arrays that lie within ``reach`` px of ``centre`` (2,).
+
+        Only the window around ``centre`` is converted to float32 (the whole padded mask would be
+        2 MB to allocate per view). The window's corner is an integer, so the points shifted into
+        it keep their fractions exactly and the samples are those of the whole mask.
+        """
+        u0, v0 = int(centre[0]) - reach - 2, int(centre[1]) - reach - 2
+        size = 2 * reach + 5
+        if min(u0, v0) < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
+            # Beyond the padding (the search stays within it): cv2.remap's own border handling.
+            return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
+        window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
+        where = where - np.array((u0, v0), dtype=np.float32)
+        return cv2.remap(window, where, None, cv2.INTER_LINEAR).reshape(-1)
 
     def out_of_zone(self, start: np.ndarray, ends: np.ndarray, r: int) -> np.ndarray:
         """O: samples of the chords start -> ends (k, 2), 1 px apart, outside the zone."""
         if r < 2:
             return np.zeros(len(ends), dtype=np.int64)
-        samples = (start + self.pad + 0.5) + chord_fractions(r) * (ends - start)[:, None, :]
-        p = samples.astype(np.intp)  # + 0.5 then truncation: rounding (coordinates are positive)
-        return (self.zone_flat[p[..., 1] * self.padded_width + p[..., 0]] == 0).sum(axis=1)
+        samples = chord_fractions(r) * (ends - start)[:, None, :]
+        samples += start + self.pad + 0.5
+        # + 0.5 then truncation: rounding (coordinates are positive)
+        return (self.zone_flat[samples.astype(np.intp) @ self._flat_weights] == 0).sum(axis=1)
 
     def tangent(
         self, point: np.ndarray, direction: np.ndarray, consumed_flat: np.ndarray | None = None
@@ -210,9 +263,10 @@ class MaskReader:
         """Distance (px, 0.5 px steps, at most r_s) from ``start`` along ``unit`` to where the mask ends."""
         along = np.arange(0.5, self.step_radius + 0.01, 0.5)
         where = (start + self.pad + along[:, None] * unit).astype(np.float32).reshape(-1, 1, 2)
+        centre = (start + self.pad).astype(np.float32)
         # A low threshold and gaps of one sample tolerated: along a thin diagonal thread the
         # bilinear mask dips at the staircase's corners.
-        inside = cv2.remap(self.sampled, where, None, cv2.INTER_LINEAR).reshape(-1) > 0.25
+        inside = self._bilinear(where, centre, self.step_radius + 1) > 0.25
         outside = np.flatnonzero(~inside[:-1] & ~inside[1:])
         end = outside[0] if outside.size else len(along)
         covered = np.flatnonzero(inside[:end])

@@ -53,7 +53,7 @@ from suture_ordering.occluders import across_occluder
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.path import Branch, advance
 from suture_ordering.steps import next_candidates
-from suture_ordering.tuning import Tuning, parameter_grid
+from suture_ordering.tuning import parameter_grid, tuning_for
 
 __all__ = ["SearchResult", "Searcher", "parameter_grid"]
 
@@ -91,10 +91,9 @@ class Searcher:
             reader=MaskReader(clean, params.wide_arc_factor, scaled.step_radius),
             params=params,
             scaled=scaled,
-            tuning=Tuning(params, scaled.max_reach),
+            tuning=tuning_for(params, scaled.max_reach),
             thickness=max(1, round(2 * scaled.detect_radius)),
         )
-        self.consumed0 = np.zeros_like(clean.padded)
 
     def run(self, tip: np.ndarray, hook: HookStart | None = None) -> SearchResult:
         """Order the thread from ``tip`` ((2,) float (u, v), a free end on the mask), or along
@@ -102,7 +101,8 @@ class Searcher:
         context = self.context
         grid = context.tuning.grid
         start = np.asarray(tip, float) if hook is None else hook.points[0]
-        root = Branch(rows=np.arange(len(grid)), consumed=self.consumed0.copy(), vertices=[start])
+        consumed = np.zeros(context.reader.mask.shape, dtype=np.uint8)  # calloc'd: no blank copy
+        root = Branch(rows=np.arange(len(grid)), consumed=consumed, vertices=[start])
         if hook is not None:
             follow(context, root, hook)
         pending = [root]
@@ -123,12 +123,11 @@ class Searcher:
                     append_tail(context, branch)
                     branch.status = end_status(context, branch.vertices[-1])
                     break
-                if found.decided is not None:
-                    choice = np.full(len(branch.rows), found.decided)
-                    chosen = np.array([found.decided])
-                else:
-                    choice = np.argmin(context.tuning.cost(branch.rows, found), axis=1)
-                    chosen = np.unique(choice)
+                if found.decided is not None:  # every parameter set takes this node
+                    _step_to(context, branch, found, found.decided)
+                    continue
+                choice = np.argmin(context.tuning.cost(branch.rows, found), axis=1)
+                chosen = np.unique(choice)
                 if len(chosen) > 1:  # the parameter sets disagree: fork
                     forks += len(chosen) - 1
                     for j in chosen[1:]:

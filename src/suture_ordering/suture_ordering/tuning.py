@@ -8,11 +8,13 @@ Each candidate node ``A_j`` of a step costs::
 ε1, ε2, ε3 take ``grid_size`` evenly spaced values in R1, R2, R3 (27 sets by default), and
 every parameter set is evaluated at once: one (sets x nodes) array per step
 (:meth:`Tuning.cost`). How the search forks where the sets disagree is in
-:mod:`suture_ordering.search`.
+:mod:`suture_ordering.search`. The grid depends on the parameters only, so each
+:class:`Tuning` is built once and shared by every mask ordered with them (:func:`tuning_for`).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -44,6 +46,7 @@ class Tuning:
 
     def __init__(self, params: OrderingParams, max_reach: int) -> None:
         self.grid = parameter_grid(params)
+        self.grid.setflags(write=False)  # shared between searches (tuning_for)
         self.mu = params.mu
         self.log_mu = math.log(params.mu)
         self.eps3_max = float(self.grid[:, 2].max())
@@ -61,3 +64,9 @@ class Tuning:
     def least_cost_at(self, rows: np.ndarray, r: float) -> np.ndarray:
         """(G_b,) the least cost any node at distance ``r`` can have (O = 0, δ = 0) per set."""
         return self.log_mu + self.grid[rows, 1] * r
+
+
+@functools.lru_cache(maxsize=32)
+def tuning_for(params: OrderingParams, max_reach: int) -> Tuning:
+    """The :class:`Tuning` of ``params`` and ``max_reach``, built once and then shared (read-only)."""
+    return Tuning(params, max_reach)
