@@ -9,10 +9,17 @@ curve outside the zone, like a gap that the bridge checks refuse
 within ``bridge_turn_max`` is taken when the smooth step to it (Hermite,
 bending less than ``bridge_bend_max``) stays in the zone and crosses the
 traversed path (:func:`across_own_path`).
+
+The search ends (and this is tried) once per search, mostly at the thread's free end, where
+nothing lies ahead: one raster test of the window (:func:`free_mask_ahead`) settles that before
+any circle is read.
 """
 
 from __future__ import annotations
 
+import math
+
+import cv2
 import numpy as np
 
 from suture_ordering.context import SearchContext
@@ -40,6 +47,8 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
     if heading is None or tangent is None:
         return None
     vertex = branch.vertices[-1]
+    if not free_mask_ahead(context, branch, vertex, heading):
+        return None
     consumed_flat = branch.consumed.reshape(-1)
     unit = tangent / float(np.hypot(*tangent))
     for r in range(scaled.step_radius + 1, scaled.roi_radius + 1):
@@ -59,3 +68,39 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
                 continue
             return Candidates.smooth_step(point, r, delta[j : j + 1], nodes.width[j : j + 1], onward)
     return None
+
+
+#: A node's pixel (its rounded position) lies within this many pixels (Chebyshev) of a mask
+#: pixel: the node is within one sample spacing (<= 1 px) of a circle sample above 0.5, whose
+#: bilinear neighbours (one of them on the mask) lie within 1 px of its rounded position.
+NODE_TO_MASK_PX = 3
+
+
+def free_mask_ahead(context: SearchContext, branch: Branch, vertex: np.ndarray, heading: np.ndarray) -> bool:
+    """Whether a free node ahead of :func:`across_own_path` can exist: an undetected pixel within
+    :data:`NODE_TO_MASK_PX` of the mask, at a distance from ``vertex`` that rounds from a circle
+    r_s < r <= Υ, turning from ``heading`` less than ``bridge_turn_max`` (plus what rounding to
+    a pixel can turn). False settles that no node qualifies; True only allows one."""
+    reader, scaled = context.reader, context.scaled
+    reach = scaled.roi_radius + 1
+    margin = reach + NODE_TO_MASK_PX
+    cu, cv = round(float(vertex[0])) + reader.pad, round(float(vertex[1])) + reader.pad
+    if min(cu, cv) < margin or cu + margin >= reader.padded_width or cv + margin >= reader.padded_height:
+        return True  # beyond the padding: let the circles decide
+    size = 2 * NODE_TO_MASK_PX + 1
+    near_mask = cv2.dilate(
+        reader.mask[cv - margin : cv + margin + 1, cu - margin : cu + margin + 1],
+        np.ones((size, size), np.uint8),
+    )[NODE_TO_MASK_PX:-NODE_TO_MASK_PX, NODE_TO_MASK_PX:-NODE_TO_MASK_PX]
+    window = (slice(cv - reach, cv + reach + 1), slice(cu - reach, cu + reach + 1))
+    rows, cols = np.nonzero(near_mask > branch.consumed[window])
+    if rows.size == 0:
+        return False
+    offset = np.column_stack((cols + (cu - reach - reader.pad), rows + (cv - reach - reader.pad))) - vertex
+    distance = np.sqrt((offset * offset).sum(axis=1))
+    # A pixel is at most sqrt(2) / 2 px (< 1) from the node it rounds.
+    near = (distance >= scaled.step_radius) & (distance <= scaled.roi_radius + 1)
+    if not near.any():
+        return False
+    slack = math.asin(min(1.0, 1.0 / scaled.step_radius))
+    return bool((turn_angles(offset[near], heading) < context.params.bridge_turn_max + slack).any())

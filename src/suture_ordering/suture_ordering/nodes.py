@@ -211,7 +211,7 @@ class MaskReader:
 
     def _bilinear(self, where: np.ndarray, centre: np.ndarray, reach: int) -> np.ndarray:
         """(n,) the mask sampled bilinearly (cv2.remap) at ``where``, (n, 1, 2) float32 points of
-        the padded arrays that lie within ``reach`` px of ``centre`` (2,).
+        the padded arrays that lie within ``reach`` px of ``centre`` (2,); ``where`` is reused.
 
         Only the window around ``centre`` is converted to float32 (the whole padded mask would be
         2 MB to allocate per view). The window's corner is an integer, so the points shifted into
@@ -223,7 +223,7 @@ class MaskReader:
             # Beyond the padding (the search stays within it): cv2.remap's own border handling.
             return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
         window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
-        where = where - np.array((u0, v0), dtype=np.float32)
+        where -= np.array((u0, v0), dtype=np.float32)
         return cv2.remap(window, where, None, cv2.INTER_LINEAR).reshape(-1)
 
     def out_of_zone(self, start: np.ndarray, ends: np.ndarray, r: int) -> np.ndarray:

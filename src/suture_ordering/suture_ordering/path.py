@@ -22,6 +22,7 @@ Detected nodes.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -69,6 +70,12 @@ class Branch:
     @property
     def length(self) -> int:
         return 1 + sum(len(s) for s in self.segments)
+
+
+@functools.lru_cache(maxsize=256)
+def chord_steps(n: int) -> np.ndarray:
+    """(n, 1) fractions 1/n .. n/n: the points of a chord n px long, 1 px apart, after its start."""
+    return (np.arange(1, n + 1) / n)[:, None]
 
 
 def thread_width(branch: Branch) -> float | None:
@@ -119,7 +126,7 @@ def advance(
     length = float(np.hypot(*chord))
     if continuation is None:
         n = max(1, math.ceil(length))
-        segment = start + (np.arange(1, n + 1) / n)[:, None] * chord
+        segment = start + chord_steps(n) * chord
         cv2.line(
             branch.consumed,
             fixed_point(start + pad),

@@ -47,7 +47,7 @@ def admissible(
         delta = np.zeros(len(position))
     else:  # |direction| = r for nodes on the circle around the vertex
         cos = (direction @ heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
-        delta = np.arccos(np.clip(cos, -1.0, 1.0))
+        delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
     keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
     if not keep.all():
         if not keep.any():
@@ -137,14 +137,15 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
             if junction is not None:
                 return junction
         if first is not None:
-            inside = first.out == 0
-            if inside.any() and tuning.zone_dominates:
+            if tuning.zone_dominates:
                 # Equidistant nodes inside the zone: every parameter set prefers the smallest
                 # turn, and no farther node can do better if even the largest ε3 keeps that
                 # cost below the cheapest node one pixel farther (no cost matrix needed).
-                turn = float(first.delta[inside].min())
-                if math.exp(tuning.eps3_max * math.sin(turn / 2)) <= (r_s + 1) / r_s:
-                    first.decided = int(np.flatnonzero(inside)[np.argmin(first.delta[inside])])
+                turns = first.delta if not first.bridge.any() else np.where(first.bridge, np.inf, first.delta)
+                smallest = int(turns.argmin())
+                turn = float(turns[smallest])
+                if turn < math.inf and math.exp(tuning.eps3_max * math.sin(turn / 2)) <= (r_s + 1) / r_s:
+                    first.decided = smallest
                     return first
             found.append(first)
             best = tuning.cost(branch.rows, first).min(axis=1)
