@@ -11,8 +11,8 @@ bending less than ``bridge_bend_max``) stays in the zone and crosses the
 traversed path (:func:`across_own_path`).
 
 The search ends (and this is tried) once per search, mostly at the thread's free end, where
-nothing lies ahead: one raster test of the window (:func:`free_mask_ahead`) settles that before
-any circle is read.
+nothing lies ahead: one raster test of the window (:func:`radii_ahead`) settles that before
+any circle is read, and which circles may hold a way on.
 """
 
 from __future__ import annotations
@@ -47,11 +47,9 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
     if heading is None or tangent is None:
         return None
     vertex = branch.vertices[-1]
-    if not free_mask_ahead(context, branch, vertex, heading):
-        return None
     consumed_flat = branch.consumed.reshape(-1)
     unit = tangent / float(np.hypot(*tangent))
-    for r in range(scaled.step_radius + 1, scaled.roi_radius + 1):
+    for r in radii_ahead(context, branch, vertex, heading):
         nodes = reader.nodes(vertex, r, None)
         if nodes is None:
             continue
@@ -76,17 +74,19 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
 NODE_TO_MASK_PX = 3
 
 
-def free_mask_ahead(context: SearchContext, branch: Branch, vertex: np.ndarray, heading: np.ndarray) -> bool:
-    """Whether a free node ahead of :func:`across_own_path` can exist: an undetected pixel within
-    :data:`NODE_TO_MASK_PX` of the mask, at a distance from ``vertex`` that rounds from a circle
-    r_s < r <= Υ, turning from ``heading`` less than ``bridge_turn_max`` (plus what rounding to
-    a pixel can turn). False settles that no node qualifies; True only allows one."""
+def radii_ahead(context: SearchContext, branch: Branch, vertex: np.ndarray, heading: np.ndarray) -> list[int]:
+    """The circles r_s < r <= Υ, ascending, that may hold a free node ahead for
+    :func:`across_own_path`: those a node's pixel (its rounded position, < 1 px from the circle)
+    can round from, for the undetected pixels within :data:`NODE_TO_MASK_PX` of the mask that
+    turn from ``heading`` less than ``bridge_turn_max`` (plus what rounding to a pixel can
+    turn). A circle left out holds no such node; one listed may."""
     reader, scaled = context.reader, context.scaled
+    every = list(range(scaled.step_radius + 1, scaled.roi_radius + 1))
     reach = scaled.roi_radius + 1
     margin = reach + NODE_TO_MASK_PX
     cu, cv = round(float(vertex[0])) + reader.pad, round(float(vertex[1])) + reader.pad
     if min(cu, cv) < margin or cu + margin >= reader.padded_width or cv + margin >= reader.padded_height:
-        return True  # beyond the padding: let the circles decide
+        return every  # beyond the padding: let the circles decide
     size = 2 * NODE_TO_MASK_PX + 1
     near_mask = cv2.dilate(
         reader.mask[cv - margin : cv + margin + 1, cu - margin : cu + margin + 1],
@@ -95,12 +95,15 @@ def free_mask_ahead(context: SearchContext, branch: Branch, vertex: np.ndarray, 
     window = (slice(cv - reach, cv + reach + 1), slice(cu - reach, cu + reach + 1))
     rows, cols = np.nonzero(near_mask > branch.consumed[window])
     if rows.size == 0:
-        return False
+        return []
     offset = np.column_stack((cols + (cu - reach - reader.pad), rows + (cv - reach - reader.pad))) - vertex
     distance = np.sqrt((offset * offset).sum(axis=1))
-    # A pixel is at most sqrt(2) / 2 px (< 1) from the node it rounds.
+    # A pixel lies at most sqrt(2) / 2 px (< 1) from the node it rounds: from circle floor(d) or ceil(d).
     near = (distance >= scaled.step_radius) & (distance <= scaled.roi_radius + 1)
     if not near.any():
-        return False
+        return []
     slack = math.asin(min(1.0, 1.0 / scaled.step_radius))
-    return bool((turn_angles(offset[near], heading) < context.params.bridge_turn_max + slack).any())
+    ahead = turn_angles(offset[near], heading) < context.params.bridge_turn_max + slack
+    distance = distance[near][ahead]
+    radii = np.unique(np.concatenate((np.floor(distance), np.ceil(distance))).astype(int))
+    return [int(r) for r in radii if scaled.step_radius < r <= scaled.roi_radius]
