@@ -41,7 +41,7 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
     tangents, bending less than ``bridge_bend_max``) runs within the zone (at most 10 %
     outside) and over the traversed path (crossing it), nearest first.
     """
-    reader, params, scaled = context.reader, context.params, context.scaled
+    reader, params = context.reader, context.params
     heading = predicted_heading(branch)
     tangent = tangent_at_vertex(branch)
     if heading is None or tangent is None:
