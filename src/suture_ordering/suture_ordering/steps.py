@@ -126,7 +126,7 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
     width = thread_width(branch)
     r_s = context.scaled.step_radius
     found: list[Candidates] = []
-    best = np.full(len(branch.rows), np.inf)
+    best = None  # per parameter set, the least cost found so far
     nodes = reader.nodes(vertex, r_s, width)
     if nodes is not None:
         first = admissible(context, branch, nodes, heading, consumed_flat)
@@ -152,7 +152,9 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
             if np.all(best <= tuning.least_cost_at(branch.rows, r_s + 1)):
                 return first
     for r in farther_radii(context, branch, vertex, heading):
-        if found and (r > context.scaled.roi_radius or np.all(best <= tuning.least_cost_at(branch.rows, r))):
+        if best is not None and (
+            r > context.scaled.roi_radius or np.all(best <= tuning.least_cost_at(branch.rows, r))
+        ):
             break
         nodes = reader.nodes(vertex, r, width)
         if nodes is None:
@@ -161,5 +163,6 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
         if more is None:
             continue
         found.append(more)
-        best = np.minimum(best, tuning.cost(branch.rows, more).min(axis=1))
+        least = tuning.cost(branch.rows, more).min(axis=1)
+        best = least if best is None else np.minimum(best, least)
     return Candidates.concatenate(found) if found else None
