@@ -202,8 +202,8 @@ class MaskReader:
             widths += [arc for _, arc, _ in split] * 2
         angle = np.array(centres) * circle.angle_step
         position = np.empty((len(angle), 2))
-        position[:, 0] = np.cos(angle)
-        position[:, 1] = np.sin(angle)
+        np.cos(angle, out=position[:, 0])
+        np.sin(angle, out=position[:, 1])
         position *= r
         position += vertex
         widths_array = np.array(widths, dtype=np.float32)
@@ -219,7 +219,7 @@ class MaskReader:
         """
         u0, v0 = int(centre[0]) - reach - 2, int(centre[1]) - reach - 2
         size = 2 * reach + 5
-        if min(u0, v0) < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
+        if u0 < 0 or v0 < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
             # Beyond the padding (the search stays within it): cv2.remap's own border handling.
             return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
         window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
