@@ -71,6 +71,23 @@ def end_direction(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     return first / speed, float(curvature)
 
 
+def _path_back(branch: Branch, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """The path's last points ((M, 2), a tail of the traversed path, or all of it) and the arc
+    length back from its end to each earlier point ((M - 1,), cumulative): a tail whose arc
+    reaches ``length`` (only that much is fitted), else the whole path."""
+    taken = 0
+    for first in range(len(branch.segments) - 1, -1, -1):
+        taken += len(branch.segments[first])
+        if taken > length + 1:  # then the arc back may reach ``length``: check it
+            tail = np.vstack(branch.segments[first:])
+            arc_back = np.cumsum(np.hypot(*np.diff(tail[::-1], axis=0).T))
+            if arc_back[-1] >= length:
+                return tail, arc_back
+            break  # points closer than 1 px: the whole path
+    path = np.vstack([branch.vertices[0], *branch.segments])
+    return path, np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
+
+
 def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None:
     """The step across a wide gap beyond the end of the search (see the module docstring): the
     one candidate, or None (the thread ends here). With a candidate, ``branch``'s track is set
@@ -81,8 +98,7 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
     if reach <= scaled.tau_o or not branch.segments:
         return None
     fit_length = FIT_STEPS * scaled.step_radius
-    path = np.vstack([branch.vertices[0], *branch.segments])
-    arc_back = np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
+    path, arc_back = _path_back(branch, fit_length)
     count = int(np.searchsorted(arc_back, fit_length)) + 1
     if arc_back[-1] < MIN_FIT_STEPS * scaled.step_radius:
         return None  # too little thread seen to extrapolate

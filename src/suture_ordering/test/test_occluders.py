@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_ordering import order_sequence, order_stereo
 from suture_ordering.not_seen import flagged_sequence
-from suture_ordering.occluders import end_direction
+from suture_ordering.occluders import _path_back, end_direction
+from suture_ordering.path import Branch
 
 W, H = 640, 480
 #: At 110 mm from the default 640 px camera (fx 520 px) 20 mm of thread is about 95 px.
@@ -162,3 +164,22 @@ def test_end_direction_measures_the_tangent_and_curvature_of_an_arc():
     tangent, curvature = end_direction(arc)
     np.testing.assert_allclose(tangent, [np.cos(0.6), np.sin(0.6)], atol=0.01)
     assert abs(curvature * radius - 1) < 0.15
+
+
+@pytest.mark.parametrize("spacing", [1.0, 0.3, 2.5])
+def test_the_fitted_tail_is_the_whole_paths_end(spacing):
+    rng = np.random.default_rng(7)
+    start = np.array([100.0, 100.0])
+    segments = [
+        start + np.cumsum(rng.uniform(0.5, 1.5, (k, 2)) * spacing, axis=0) for k in (5, 9, 3, 12, 7, 8)
+    ]
+    branch = Branch(
+        rows=np.arange(1), consumed=np.zeros((4, 4), np.uint8), vertices=[start], segments=segments
+    )
+    path = np.vstack([start, *segments])
+    full = np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
+    for length in (3.0, 20.0, 1e6):
+        tail, arc_back = _path_back(branch, length)
+        assert np.array_equal(tail, path[-len(tail) :])
+        assert np.array_equal(arc_back, full[: len(arc_back)])
+        assert arc_back[-1] >= length or len(tail) == len(path)
