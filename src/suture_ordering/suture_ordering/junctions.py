@@ -37,6 +37,8 @@ class Stop:
 
 
 STOP = Stop()
+#: (1, 5, 1) fractions of a chord where :func:`junction_step` checks that it leads across.
+_CHORD_SAMPLES = np.linspace(0.25, 0.75, 5)[None, :, None]
 #: A path tangent this far from the track replaces it at a junction (:func:`junction_tangent`).
 PULLED_TURN = math.radians(5.0)
 
@@ -205,19 +207,20 @@ def junction_step(
     reader, params = context.reader, context.params
     vertex = branch.vertices[-1]
     radius = context.scaled.roi_radius
-    tangent = junction_tangent(branch, radius)
     far = reader.nodes(vertex, radius, None)  # one node per arm: merged arms stay one
-    if far is None or tangent is None:
+    if far is None:
         return None
     free = np.flatnonzero(consumed_flat[reader.flat(far.position)] == 0)
     points = far.position[free]
     ahead = turn_angles(points - vertex, heading) < params.tau_v
     # A branch whose chord runs mostly over the traversed path leads back, not across.
-    t = np.linspace(0.25, 0.75, 5)
-    along = vertex + t[None, :, None] * (points - vertex)[:, None, :]
+    along = vertex + _CHORD_SAMPLES * (points - vertex)[:, None, :]
     ahead &= (consumed_flat[reader.flat(along)] != 0).sum(axis=1) <= 2
     if int(ahead.sum()) < 2:
         return None  # one branch ahead after all: the near nodes follow it
+    tangent = junction_tangent(branch, radius)
+    if tangent is None:
+        return None
     tangents = [reader.tangent(p, p - vertex, consumed_flat) for p in points]
     ours = [
         bend(vertex, tangent, p, t) if t is not None and ok else np.inf
