@@ -36,7 +36,7 @@ def turn_angles(direction: np.ndarray, heading: np.ndarray | None) -> np.ndarray
     if heading is None:
         return np.zeros(len(direction))
     norm = np.sqrt((direction * direction).sum(axis=1) * float(heading @ heading))
-    cos = (direction @ heading) / np.maximum(norm, 1e-12)
+    cos = direction.dot(heading) / np.maximum(norm, 1e-12)
     return np.arccos(np.minimum(np.maximum(cos, -1.0), 1.0))
 
 

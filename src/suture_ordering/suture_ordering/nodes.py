@@ -154,7 +154,7 @@ class MaskReader:
 
     def flat(self, points: np.ndarray) -> np.ndarray:
         """Flat indices into the padded arrays of (..., 2) float (u, v) points (rounded)."""
-        return np.rint(points).astype(np.intp) @ self._flat_weights + self._flat_offset
+        return np.rint(points).astype(np.intp).dot(self._flat_weights) + self._flat_offset
 
     def nodes(self, vertex: np.ndarray, r: int, width: float | None) -> Nodes | None:
         """Centreline nodes on the circle of radius ``r`` around ``vertex`` (sub-pixel).
@@ -233,7 +233,7 @@ class MaskReader:
         samples = chord_fractions(r) * (ends - start)[:, None, :]
         samples += start + self.pad + 0.5
         # + 0.5 then truncation: rounding (coordinates are positive)
-        return (self.zone_flat[samples.astype(np.intp) @ self._flat_weights] == 0).sum(axis=1)
+        return (self.zone_flat[samples.astype(np.intp).dot(self._flat_weights)] == 0).sum(axis=1)
 
     def tangent(
         self, point: np.ndarray, direction: np.ndarray, consumed_flat: np.ndarray | None = None

@@ -46,7 +46,7 @@ def admissible(
     if heading is None:
         delta = np.zeros(len(position))
     else:  # |direction| = r for nodes on the circle around the vertex
-        cos = (direction @ heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
+        cos = direction.dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
         delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
     keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
     if not keep.all():
