@@ -14,7 +14,9 @@ figures (IoU, precision, recall, centreline recall and precision, clDice), the g
         --base m_ost --out DIR [--epochs N --steps-per-epoch N ...]
 
 ``DIR/curve.md`` and ``DIR/curve.json`` hold the table, ``DIR/n<N>/`` each fine-tuned model
-(``best.pt``, ``last.pt``, ``log.jsonl``). The labelled folders are in the format of
+(``best.pt``, ``last.pt``, ``log.jsonl``); a rerun with the same base, labelled images and
+training options evaluates the models already there (on other test bags, say) instead of
+training them again. The labelled folders are in the format of
 :mod:`suture_segmentation.data` (``suture-import --png-dir`` or ``suture-sim --png-dir``
 write them); the test bags need true masks for the segmentation figures and a true grasp
 pose for the grasp figures, and are scored on what they carry. Errors print one line on
@@ -27,7 +29,6 @@ import argparse
 import json
 import shlex
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -35,7 +36,7 @@ from typing import Any
 
 from suture_bench.evaluate import evaluate
 from suture_bench.frames import EvaluationError
-from suture_segmentation.checkpoint import WeightsError
+from suture_segmentation.checkpoint import WeightsError, load_checkpoint
 from suture_segmentation.cli import add_training_options, training_config
 from suture_segmentation.data import DatasetError, load_folder
 from suture_segmentation.train import TrainConfig, finetune
@@ -100,7 +101,8 @@ def fewshot_curve(
     """Fine-tune ``base`` on the first N labelled images for each N of ``counts`` and evaluate.
 
     Returns ``{"base", "images", "config", "test", "frames", "rows"}``; ``rows`` holds one
-    :func:`curve_row` per count, in the order of ``counts``. Models go to ``out_dir/n<N>/``.
+    :func:`curve_row` per count, in the order of ``counts``, with ``reused``: whether the model
+    was already in ``out_dir/n<N>/`` (:func:`_same_finetune`). Models go to ``out_dir/n<N>/``.
 
     Raises:
         DatasetError: the labelled folders are unreadable or hold fewer images than a count.
@@ -115,16 +117,17 @@ def fewshot_curve(
     out_dir = Path(out_dir)
     rows = []
     for count in counts:
-        weights, seconds = str(base), None
+        weights, seconds, reused = str(base), None, False
         if count > 0:
             labelled = pool.subset(range(count))
             folder = out_dir / f"n{count}"
-            started = time.monotonic()
-            meta = {"fewshot_images": labelled.names}
-            finetune(base, labelled, labelled, config, folder, meta, device, progress)
-            weights, seconds = str(folder / "best.pt"), round(time.monotonic() - started, 1)
+            reused = _same_finetune(folder, base, labelled.names, config)
+            if not reused:
+                meta = {"fewshot_images": labelled.names}
+                finetune(base, labelled, labelled, config, folder, meta, device, progress)
+            weights, seconds = str(folder / "best.pt"), _training_seconds(folder)
         summary = evaluate(test_paths, masks="predicted", sequences="predicted", seg_weights=weights)
-        rows.append(curve_row(count, summary, seconds))
+        rows.append({**curve_row(count, summary, seconds), "reused": reused})
         if progress:
             print(markdown_row(rows[-1]), flush=True)
     return {
@@ -135,6 +138,22 @@ def fewshot_curve(
         "frames": rows[0]["frames"],
         "rows": rows,
     }
+
+
+def _same_finetune(folder: Path, base: str | Path, names: list[str], config: TrainConfig) -> bool:
+    """Whether ``folder/best.pt`` was fine-tuned from ``base`` on the images ``names`` with
+    ``config``: then a rerun (on other test bags, say) evaluates it instead of training again."""
+    if not (folder / "best.pt").is_file() or not (folder / "log.jsonl").is_file():
+        return False
+    _, meta = load_checkpoint(folder / "best.pt")
+    wanted = (str(base), names, asdict(config))
+    return (meta.get("finetuned_from"), meta.get("fewshot_images"), meta.get("config")) == wanted
+
+
+def _training_seconds(folder: Path) -> float:
+    """Seconds the fine-tune in ``folder`` trained (its log's last epoch)."""
+    lines = (folder / "log.jsonl").read_text().splitlines()
+    return float(json.loads(lines[-1])["elapsed_s"])
 
 
 def markdown_row(row: dict[str, Any]) -> str:
@@ -159,12 +178,15 @@ def write_curve(curve: dict[str, Any], out_dir: str | Path) -> tuple[Path, Path]
     json_path, md_path = out_dir / "curve.json", out_dir / "curve.md"
     json_path.write_text(json.dumps(curve, indent=2) + "\n")
     config = curve["config"]
+    reused_counts = [str(row["images"]) for row in curve["rows"] if row.get("reused")]
+    reused = f" Models reused from an earlier run: N = {', '.join(reused_counts)}." if reused_counts else ""
     md_path.write_text(
         f"```bash\n{curve['command']}\n```\n\n{markdown_table(curve)}\n\n"
         f"Base model {curve['base']}; {curve['frames']} test frames ({', '.join(curve['test'])}); "
         f"fine-tuning {config['epochs']} epochs x {config['steps_per_epoch']} steps of "
         f"{config['batch_size']} crops of {config['crop']} px, loss {config['loss']}, "
-        f"seed {config['seed']}. Grasps within 5 mm: share of all test frames (no grasp = miss).\n"
+        f"seed {config['seed']}. Grasps within 5 mm: share of all test frames (no grasp = miss). "
+        f"Fine-tune (s): the training loop's time, all epochs.{reused}\n"
     )
     return json_path, md_path
 

@@ -39,7 +39,7 @@ def camera_data(tmp_path_factory) -> dict[str, Path]:
 
 
 def _figures(row: dict) -> dict:
-    return {key: value for key, value in row.items() if key != "finetune_s"}
+    return {key: value for key, value in row.items() if key not in ("finetune_s", "reused")}
 
 
 def test_each_row_is_the_evaluation_of_its_model(camera_data, tmp_path):
@@ -72,6 +72,18 @@ def test_each_row_is_the_evaluation_of_its_model(camera_data, tmp_path):
     assert curve["command"] in table
     assert "| labelled images | IoU |" in table
     assert table.count("\n| 0 | ") == 1 and table.count("\n| 2 | ") == 1
+    assert not tuned_row["reused"] and "reused" not in table
+
+    # the same settings again: the model there is evaluated, not trained; another seed trains anew
+    trained_at = tuned.stat().st_mtime_ns
+    assert main([*args, "--out", str(out), *TINY_TRAINING]) == 0
+    rerun = json.loads((out / "curve.json").read_text())
+    assert tuned.stat().st_mtime_ns == trained_at and rerun["rows"][1]["reused"]
+    assert [_figures(row) for row in rerun["rows"]] == [_figures(row) for row in curve["rows"]]
+    assert "reused from an earlier run: N = 2." in (out / "curve.md").read_text()
+    assert main([*args, "--out", str(out), *TINY_TRAINING, "--seed", "1"]) == 0
+    assert tuned.stat().st_mtime_ns != trained_at
+    assert not json.loads((out / "curve.json").read_text())["rows"][1]["reused"]
 
 
 def test_more_images_than_labelled_is_one_line_and_status_2(camera_data, tmp_path, capsys):
