@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from suture_bench.evaluate import evaluate
-from suture_bench.frames import EvaluationError
+from suture_bench.frames import EvaluationError, find_bags
 from suture_segmentation.checkpoint import WeightsError, load_checkpoint
 from suture_segmentation.cli import add_training_options, training_config
 from suture_segmentation.data import DatasetError, load_folder
@@ -109,6 +109,7 @@ def fewshot_curve(
         WeightsError: ``base`` cannot be loaded.
         EvaluationError: the test bags cannot be read.
     """
+    find_bags(test_paths)  # a missing test bag fails now, not after the fine-tunes
     pool = load_folder(images_dir, masks_dir, limit=max(counts))
     if len(pool) < max(counts):
         raise DatasetError(
@@ -192,7 +193,11 @@ def write_curve(curve: dict[str, Any], out_dir: str | Path) -> tuple[Path, Path]
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="suture-fewshot", description=__doc__.split("\n\n")[0].strip("`: "))
+    parser = argparse.ArgumentParser(
+        prog="suture-fewshot",
+        description="How many labelled images of a new camera the segmentation model needs: fine-tune "
+        "on the first N for each N, evaluate each model on held-out bags, write the table.",
+    )
     parser.add_argument("--images", required=True, help="labelled images of the new camera (the pool)")
     parser.add_argument("--masks", required=True, help="their masks (same file names)")
     parser.add_argument(

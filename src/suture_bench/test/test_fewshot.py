@@ -86,7 +86,7 @@ def test_each_row_is_the_evaluation_of_its_model(camera_data, tmp_path):
     assert not json.loads((out / "curve.json").read_text())["rows"][1]["reused"]
 
 
-def test_more_images_than_labelled_is_one_line_and_status_2(camera_data, tmp_path, capsys):
+def test_too_few_images_or_a_missing_test_bag_is_one_line_and_status_2(camera_data, tmp_path, capsys):
     pool = camera_data["pool"]
     args = [
         "--images",
@@ -100,6 +100,10 @@ def test_more_images_than_labelled_is_one_line_and_status_2(camera_data, tmp_pat
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "holds 4 labelled images, fewer than the count 5" in error
     assert not (tmp_path / "c" / "curve.json").exists()
+    args[-1] = str(tmp_path / "no_bag")
+    assert main([*args, "--counts", "2", "--out", str(tmp_path / "c"), *TINY_TRAINING]) == 2
+    assert f"{tmp_path / 'no_bag'} does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()  # refused before any fine-tune
 
 
 @pytest.mark.parametrize("text", ["0,ten", "-1,10", ""])
