@@ -67,7 +67,9 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="suture-seg", description=__doc__.split("\n\n")[0].strip("`: "))
+    parser = argparse.ArgumentParser(
+        prog="suture-seg", description=__doc__.split("\n\n")[0].replace("``", "")
+    )
     commands = parser.add_subparsers(dest="command", required=True)
 
     train = commands.add_parser("train", help="train every layer from scratch (M-oST, M-TOT)")
