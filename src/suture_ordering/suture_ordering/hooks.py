@@ -47,6 +47,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
@@ -73,6 +74,10 @@ NEAR = 5.0
 DENSE = 1.0
 #: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
 SKIPPED = 6.0
+#: Added to a walk's turns (rad) when it goes round a loop against the merged arms' sides.
+SIDE_PENALTY = math.pi
+#: Side offsets (px) below this tell nothing.
+LATERAL = 0.3
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -261,6 +266,77 @@ def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple
     return float(turns.sum()), path
 
 
+def _oriented(graph: _Graph, k: int, rev: bool) -> np.ndarray:
+    pixels = graph.branches[k].pixels.astype(np.float64)
+    return pixels[::-1] if rev else pixels
+
+
+def _within(pixels: np.ndarray, low: float, high: float) -> np.ndarray:
+    """The ``pixels`` ((K, 2), along a line) between arc ``low`` and ``high`` px from the first."""
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pixels, axis=0).T))])
+    chosen = pixels[(along >= low) & (along <= high)]
+    return chosen if len(chosen) else pixels[-1:]
+
+
+def _offset(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
+    """Mean signed distance (px) of ``points`` (K, 2) from the line through ``centre`` along ``axis``."""
+    relative = points - centre
+    return float(np.mean(axis[0] * relative[:, 1] - axis[1] * relative[:, 0]))
+
+
+def _stroke_side(
+    graph: _Graph, walk: list[tuple[int, bool]], position: int, reach: float, thread: cKDTree
+) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """The side of the merged stroke ``walk[position - 1]`` that the thread leaves it by
+    (:func:`_loop_against_side`): the signed offset of the leaving line from the stroke's
+    pixels, and that line (a point, a unit direction); None: the thread beyond is too short."""
+    stroke = _oriented(graph, *walk[position - 1])
+    after = [_oriented(graph, k, r) for k, r in walk[position + 2 :]]
+    leaving = _within(np.vstack([stroke[:1], *after]), 1.0, 2 * reach)
+    if len(leaving) < 3:
+        return None
+    centre = leaving.mean(axis=0)
+    axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
+    near = sorted({k for found in thread.query_ball_point(stroke, reach / 2) for k in found})
+    return -_offset(thread.data[near], centre, axis), centre, axis
+
+
+def _loop_against_side(
+    graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, sides: dict
+) -> bool:
+    """Whether ``walk`` goes round a loop at the far end of merged arms the wrong way.
+
+    Where the walk passes a branch (the merged arms, the tip's arm at its start), a loop, and
+    the branch back, the thread leaves the merged stroke along its returning arm: the line of
+    the thread beyond the stroke (fitted over 2 ``reach`` px) runs along the stroke's side
+    that the returning arm lies on, half a thread's spacing from the stroke's pixels
+    (``thread``: a tree of the mask's pixels (u, v) of the thread; the mean over its pixels
+    near the branch, which a slit between the arms or a skeleton running along one arm does
+    not shift). The loop is left by its arm on that side. Offsets nearer than ``LATERAL`` px
+    tell nothing. ``sides``: the stroke's sides found so far, by (branch, reversed, next)."""
+    for position in range(1, len(walk) - 1):
+        (neck, rev), (loop, loop_rev), (back, back_rev) = walk[position - 1 : position + 2]
+        if back != neck or back_rev == rev or graph.branches[loop].a != graph.branches[loop].b:
+            continue
+        if sum(graph.branches[k].length for k, _ in walk[: position - 1]) >= reach:
+            continue  # the tip's arm joins the stroke from aside: a crossing, not merged arms
+        if position + 2 >= len(walk):
+            continue
+        key = (neck, rev, walk[position + 2])
+        if key not in sides:
+            sides[key] = _stroke_side(graph, walk, position, reach, thread)
+        found = sides[key]
+        if found is None:
+            continue
+        side, centre, axis = found
+        arc = _oriented(graph, loop, loop_rev)
+        arms = _offset(_within(arc[::-1], reach / 2, reach), centre, axis)
+        arms -= _offset(_within(arc, reach / 2, reach), centre, axis)
+        if abs(side) >= LATERAL and abs(arms) >= LATERAL and side * arms < 0:
+            return True
+    return False
+
+
 def hook_walk(
     mask: np.ndarray, tip: np.ndarray, window_radius: float, step: float, spur: float, near: float
 ) -> tuple[np.ndarray, bool] | None:
@@ -315,12 +391,16 @@ def hook_walk(
                 extra = end + fractions * (outer - end)
                 branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
     walks = _walks(graph, spur)
+    thread, sides = cKDTree(np.argwhere(own)[:, ::-1].astype(np.float64)), {}
     if not walks:
         return None
     scored = []
     for walk in walks:
         turn, path = _turning(graph, walk, step)
         scored.append((turn + 1e-3 * len(path), path))
+    for index, walk in enumerate(walks):
+        if _loop_against_side(graph, walk, step, thread, sides):
+            scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
     path = scored[best][1]
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]

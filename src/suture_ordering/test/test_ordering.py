@@ -575,6 +575,27 @@ def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm
     assert np.hypot(*(result.points[-1] - truth[-1])) < 4
 
 
+def teardrop(side: float) -> np.ndarray:
+    """Tip at (300, 240); its arm runs 20 px, bends outward (radius 12 px), round a bend of
+    radius 6 px and back so that the returning arm lies 2.5 px beside the tip arm (drawn 2 px
+    wide, the arms merge into one stroke ending in a loop), and on 220 px. ``side``: +1 or -1,
+    which way it curls."""
+    bend, counter, gap = 6.0, 12.0, 2.5
+    alpha = math.acos((gap / 2 + counter) / (bend + counter))
+    pieces = [(20.0, 0.0), (counter * alpha, -1 / counter), ((math.pi + 2 * alpha) * bend, 1 / bend)]
+    pieces += [(counter * alpha, -1 / counter), (220.0, 0.0)]
+    return curve_from_curvature((300.0, 240.0), math.pi + 0.3, [(length, side * k) for length, k in pieces])
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_loop_at_the_end_of_merged_arms_is_entered_on_the_tip_arms_side(side):
+    # The skeleton runs one line down the merged arms into a loop, the same both ways round;
+    # the thread leaving the stroke lies on the returning arm's side.
+    truth = teardrop(side)
+    result = order_sequence(draw([truth], width=2), truth[0])
+    check_follows(result.points, truth, tolerance=3.0)
+
+
 def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():
     truth = hairpin()
     left = draw([truth], width=2)
