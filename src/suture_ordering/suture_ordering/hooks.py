@@ -78,6 +78,8 @@ SKIPPED = 6.0
 SIDE_PENALTY = math.pi
 #: Side offsets (px) below this tell nothing.
 LATERAL = 0.3
+#: Merged arms are moved apart where the thread leaves them at least this far (px) aside.
+SPLIT_SIDE = 0.5
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -241,19 +243,27 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
     return found
 
 
-def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
-    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
-    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
-    pieces, passes = [], []
-    count = 0
-    for position, (k, rev) in enumerate(walk):
+def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
+    """The pixels of each of ``walk``'s branch passes, in its direction; a pixel shared with the
+    previous pass is left out, so that the pieces stacked are the walk's pixels."""
+    pieces: list[np.ndarray] = []
+    for k, rev in walk:
         pixels = graph.branches[k].pixels
         pixels = pixels[::-1] if rev else pixels
         if pieces and np.array_equal(pieces[-1][-1], pixels[0]):
             pixels = pixels[1:]
+        pieces.append(pixels)
+    return pieces
+
+
+def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
+    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
+    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
+    pieces, passes = _pieces(graph, walk), []
+    count = 0
+    for position, ((k, rev), pixels) in enumerate(zip(walk, pieces, strict=True)):
         if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
             passes.append(count - 1)
-        pieces.append(pixels)
         count += len(pixels)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
@@ -285,19 +295,19 @@ def _offset(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
 
 
 def _stroke_side(
-    graph: _Graph, walk: list[tuple[int, bool]], position: int, reach: float, thread: cKDTree
+    graph: _Graph, stroke: tuple[int, bool], after: list[tuple[int, bool]], reach: float, thread: cKDTree
 ) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """The side of the merged stroke ``walk[position - 1]`` that the thread leaves it by
-    (:func:`_loop_against_side`): the signed offset of the leaving line from the stroke's
-    pixels, and that line (a point, a unit direction); None: the thread beyond is too short."""
-    stroke = _oriented(graph, *walk[position - 1])
-    after = [_oriented(graph, k, r) for k, r in walk[position + 2 :]]
-    leaving = _within(np.vstack([stroke[:1], *after]), 1.0, 2 * reach)
+    """The side of the merged stroke (the branch pass ``stroke``) that the thread leaves it by
+    (:func:`_loop_against_side`): the signed offset of the leaving line (the passes ``after``
+    the stroke's way back) from the stroke's pixels, and that line (a point, a unit
+    direction); None: the thread beyond is too short."""
+    pixels = _oriented(graph, *stroke)
+    leaving = _within(np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]]), 1.0, 2 * reach)
     if len(leaving) < 3:
         return None
     centre = leaving.mean(axis=0)
     axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
-    near = sorted({k for found in thread.query_ball_point(stroke, reach / 2) for k in found})
+    near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
     return -_offset(thread.data[near], centre, axis), centre, axis
 
 
@@ -324,7 +334,7 @@ def _loop_against_side(
             continue
         key = (neck, rev, walk[position + 2])
         if key not in sides:
-            sides[key] = _stroke_side(graph, walk, position, reach, thread)
+            sides[key] = _stroke_side(graph, walk[position - 1], walk[position + 2 :], reach, thread)
         found = sides[key]
         if found is None:
             continue
@@ -335,6 +345,55 @@ def _loop_against_side(
         if abs(side) >= LATERAL and abs(arms) >= LATERAL and side * arms < 0:
             return True
     return False
+
+
+def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> list[tuple[int, int]]:
+    """Positions (first, back) in ``walk`` of a branch passed down and back: merged arms,
+    round a free end at its far end (a hairpin's bend), or round a loop there with the tip
+    less than ``reach`` px before it (farther, the tip's arm may cross the thread)."""
+    found = []
+    for first in range(len(walk) - 1):
+        k, rev = walk[first]
+        far = graph.branches[k].a if rev else graph.branches[k].b
+        if walk[first + 1] == (k, not rev) and graph.kind[far] == "end":
+            found.append((first, first + 1))
+        elif first + 2 < len(walk) and walk[first + 2] == (k, not rev):
+            loop = graph.branches[walk[first + 1][0]]
+            if loop.a == loop.b and sum(graph.branches[j].length for j, _ in walk[:first]) < reach:
+                found.append((first, first + 2))
+    return found
+
+
+def _split_merged_arms(
+    graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, depth: np.ndarray
+) -> np.ndarray:
+    """``walk``'s pixels (N, 2) float64, those of merged arms moved from the stroke's centre
+    onto the arms: the way back to the side the thread leaves by (:func:`_stroke_side`), the
+    way down to the other, each by the stroke's half width ``depth`` (the distance to the
+    background at the pixel) less the leaving thread's, which is half the arms' spacing."""
+    pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
+    for first, back in _merged_passes(graph, walk, reach):
+        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
+        if found is None or abs(found[0]) < SPLIT_SIDE:
+            continue
+        side, _, axis = found
+        normal = np.array([-axis[1], axis[0]])
+        if back + 1 == len(pieces):
+            continue
+        leaving = np.rint(_within(np.vstack(pieces[back + 1 :]), 0.0, 2 * reach)).astype(int)
+        half = float(np.median(depth[leaving[:, 1], leaving[:, 0]]))
+        for position, sign in ((first, -1.0), (back, 1.0)):
+            pixels = pieces[position]
+            if len(pixels) < 2:
+                continue
+            tangent = np.gradient(uniform_filter1d(pixels, SMOOTHING, axis=0, mode="nearest"), axis=0)
+            normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+            normals /= np.maximum(np.hypot(*normals.T), 1e-9)[:, None]
+            normals *= np.where(normals @ normal < 0, -1.0, 1.0)[:, None]
+            ints = np.rint(pixels).astype(int)
+            shift = np.clip(depth[ints[:, 1], ints[:, 0]] - half, 0.0, 2 * half)
+            pieces[position] = pixels + (sign * math.copysign(1.0, side) * shift)[:, None] * normals
+    return np.vstack(pieces)
 
 
 def hook_walk(
@@ -402,7 +461,8 @@ def hook_walk(
         if _loop_against_side(graph, walk, step, thread, sides):
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
-    path = scored[best][1]
+    depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    path = _split_merged_arms(graph, walks[best], step, thread, depth)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
     revisits = len(set(nodes)) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there

@@ -596,6 +596,21 @@ def test_loop_at_the_end_of_merged_arms_is_entered_on_the_tip_arms_side(side):
     check_follows(result.points, truth, tolerance=3.0)
 
 
+@pytest.mark.parametrize("heading", [0.0, 1.2])
+def test_merged_arms_at_1280_are_walked_on_each_arm_not_down_the_strokes_centre(heading):
+    # 1280 x 1024: a hairpin drawn 5 px wide whose arms lie 7 px apart merge into a stroke
+    # whose centre (the skeleton) lies 3.5 px from either arm.
+    gap, cos, sin = 7.0, math.cos(heading), math.sin(heading)
+    angle = np.linspace(-math.pi / 2, -3 * math.pi / 2, 24)
+    bend = np.column_stack([520 + gap / 2 * np.cos(angle), 500 + gap / 2 + gap / 2 * np.sin(angle)])
+    truth = np.vstack([line((600, 500), (520, 500)), bend, line((520, 500 + gap), (1100, 500 + gap))])
+    truth = (truth - (600, 500)) @ np.array([[cos, sin], [-sin, cos]]) + (600, 500)
+    result = order_sequence(draw([truth], width=5, shape=(1024, 1280)), truth[0])
+    off, _ = cKDTree(truth).query(result.points[:150])  # along the merged arms and back
+    assert np.percentile(off, 90) < 1.5
+    assert np.hypot(*(result.points[-1] - truth[-1])) < 4
+
+
 def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():
     truth = hairpin()
     left = draw([truth], width=2)
