@@ -433,7 +433,7 @@ def hook_walk(
         gap = np.hypot(ends[:, 0] + u0 - tip[0], ends[:, 1] + v0 - tip[1])
         if gap.min() <= near:
             start = int(np.flatnonzero((su == ends[np.argmin(gap), 0]) & (sv == ends[np.argmin(gap), 1]))[0])
-    rim = (np.hypot(xx - cu, yy - cv) >= window_radius - 3) | (xx < 2) | (yy < 2)
+    rim = (np.hypot(xx - cu, yy - cv) >= window_radius - 3 - spur) | (xx < 2) | (yy < 2)
     rim |= (xx > width - 3) | (yy > height - 3)
     graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
     if graph is None:

@@ -558,16 +558,18 @@ def test_hairpin_with_merged_arms_is_ordered_from_the_tip_inside_the_stroke():
     assert result.points[-1, 0] > 550
 
 
-def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm():
+@pytest.mark.parametrize("width", [2, 3])
+def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm(width):
     """Tip arm 25 px, a loop of radius 8 px turning by 230 degrees, then straight across the
-    tip arm 8 px from the tip and on."""
+    tip arm 8 px from the tip and on, slanting out of the hook's window (drawn 3 px wide, its
+    skeleton stops short of the window's edge by more than its width)."""
     radius, beta = 8.0, math.radians(50)
     to_line = radius * (1 + math.cos(beta)) / math.sin(beta)
     arm = 8.0 + radius * math.sin(beta) + math.cos(beta) * to_line
     truth = curve_from_curvature(
         (300.0, 240.0), math.pi, [(arm, 0.0), ((math.pi + beta) * radius, 1 / radius), (260.0, 0.0)]
     )
-    result = order_sequence(draw([truth], width=2), truth[0])
+    result = order_sequence(draw([truth], width=width), truth[0])
     check_follows(result.points, truth)
     # Round the loop first: the sequence reaches the loop's far side before the long thread.
     far_side = int(np.argmin(result.points[:, 0]))
