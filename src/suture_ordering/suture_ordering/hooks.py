@@ -439,11 +439,14 @@ def hook_walk(
     if graph is None:
         return None
     for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
-        for first, kind in ((True, graph.kind[branch.a]), (False, graph.kind[branch.b])):
-            if kind != "end" or branch.length < spur:
+        for first, node in ((True, branch.a), (False, branch.b)):
+            if graph.kind[node] != "end" or branch.length < spur:
                 continue
             end = branch.pixels[0] if first else branch.pixels[-1]
             outer = extend_to_end(own, end.astype(np.float64), step)
+            u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
+            if rim[v, u]:  # the thread cut by the window's edge, slanting: its skeleton stops short
+                graph.kind[node] = "rim"
             reach = float(np.hypot(*(outer - end)))
             if reach >= 1.0:
                 fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)

@@ -613,6 +613,19 @@ def test_merged_arms_at_1280_are_walked_on_each_arm_not_down_the_strokes_centre(
     assert np.hypot(*(result.points[-1] - truth[-1])) < 4
 
 
+def test_tip_at_the_crossing_of_a_small_loop_leaving_the_window_slanting_is_ordered():
+    """A simulated hooked thread (640 x 480, true mask): its tip lies where the thread crosses
+    its tip arm, so no free end is near it; the thread leaves the hook's window slanting, where
+    the skeleton of the window's mask stops short of the window's edge by more than the spur
+    length. The walk leaves the window there."""
+    stored = np.load(Path(__file__).parent / "data" / "hooked_ring_at_tip.npz")
+    mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
+    with pytest.raises(NoFreeEndError):
+        tip_from_hint(mask > 0, stored["hint"], 12.0)
+    result = order_sequence(mask, stored["hint"])
+    check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
+
+
 def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():
     truth = hairpin()
     left = draw([truth], width=2)
