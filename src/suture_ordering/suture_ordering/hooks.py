@@ -19,7 +19,14 @@ at free ends (at the mask's end, past the skeleton's), and goes on at a junction
 branch. Of all such walks the one that turns least where it passes a junction or the tip
 wins, then the shortest: each turn is the angle between the chords ``step_radius`` px along
 the walk before and after the pass, so a crossing is crossed straight and a loop is gone round
-the way the tip arm enters it. The search then starts from the walk's end with the walk as its
+the way the tip arm enters it. Where the walk passes merged arms down to a loop and back, the
+skeleton is one line the same both ways round; the loop is gone round so that the walk leaves
+it by its arm on the stroke's side that the thread leaves by (:func:`_loop_against_side`).
+Over merged arms the walk's way down moves onto the tip arm and its way back onto the
+returning arm (:func:`_split_merged_arms`), rather than both down the stroke's centre. A branch
+leaves the window where its end, or its thread extended to the mask's end, lies within the
+spur length plus 3 px of the window's edge (a thread cut slanting by the window thins to a
+skeleton that stops short of it). The search then starts from the walk's end with the walk as its
 path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
 track.
 
