@@ -156,6 +156,11 @@ def sample() -> Sample:
         if harness.raw_stamp_ns(message.header.stamp) == stamp:
             found[wanted[topic]] = message
     assert set(found) == set(wanted.values()), f"bags/sample lacks {set(wanted.values()) - set(found)}"
+    # The true sequences' z is visibility (1 = visible); a published sequence's z is the
+    # not-seen flag (docs/interfaces.md): sent as ordering_node would send them, all seen.
+    for sequence in (found["left_sequence"], found["right_sequence"]):
+        for point in sequence.polygon.points:
+            point.z = 0.0
     return Sample(frames=frames, **found)
 
 

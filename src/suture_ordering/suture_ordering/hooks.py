@@ -19,7 +19,14 @@ at free ends (at the mask's end, past the skeleton's), and goes on at a junction
 branch. Of all such walks the one that turns least where it passes a junction or the tip
 wins, then the shortest: each turn is the angle between the chords ``step_radius`` px along
 the walk before and after the pass, so a crossing is crossed straight and a loop is gone round
-the way the tip arm enters it. The search then starts from the walk's end with the walk as its
+the way the tip arm enters it. Where the walk passes merged arms down to a loop and back, the
+skeleton is one line the same both ways round; the loop is gone round so that the walk leaves
+it by its arm on the stroke's side that the thread leaves by (:func:`_loop_against_side`).
+Over merged arms the walk's way down moves onto the tip arm and its way back onto the
+returning arm (:func:`_split_merged_arms`), rather than both down the stroke's centre. A branch
+leaves the window where its end, or its thread extended to the mask's end, lies within the
+spur length plus 3 px of the window's edge (a thread cut slanting by the window thins to a
+skeleton that stops short of it). The search then starts from the walk's end with the walk as its
 path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
 track.
 
@@ -47,6 +54,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
@@ -73,6 +81,12 @@ NEAR = 5.0
 DENSE = 1.0
 #: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
 SKIPPED = 6.0
+#: Added to a walk's turns (rad) when it goes round a loop against the merged arms' sides.
+SIDE_PENALTY = math.pi
+#: Side offsets (px) below this tell nothing.
+LATERAL = 0.3
+#: Merged arms are moved apart where the thread leaves them at least this far (px) aside.
+SPLIT_SIDE = 0.5
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -236,19 +250,27 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
     return found
 
 
-def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
-    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
-    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
-    pieces, passes = [], []
-    count = 0
-    for position, (k, rev) in enumerate(walk):
+def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
+    """The pixels of each of ``walk``'s branch passes, in its direction; a pixel shared with the
+    previous pass is left out, so that the pieces stacked are the walk's pixels."""
+    pieces: list[np.ndarray] = []
+    for k, rev in walk:
         pixels = graph.branches[k].pixels
         pixels = pixels[::-1] if rev else pixels
         if pieces and np.array_equal(pieces[-1][-1], pixels[0]):
             pixels = pixels[1:]
+        pieces.append(pixels)
+    return pieces
+
+
+def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
+    """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
+    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
+    pieces, passes = _pieces(graph, walk), []
+    count = 0
+    for position, ((k, rev), pixels) in enumerate(zip(walk, pieces, strict=True)):
         if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
             passes.append(count - 1)
-        pieces.append(pixels)
         count += len(pixels)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
@@ -259,6 +281,126 @@ def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
     turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
     return float(turns.sum()), path
+
+
+def _oriented(graph: _Graph, k: int, rev: bool) -> np.ndarray:
+    pixels = graph.branches[k].pixels.astype(np.float64)
+    return pixels[::-1] if rev else pixels
+
+
+def _within(pixels: np.ndarray, low: float, high: float) -> np.ndarray:
+    """The ``pixels`` ((K, 2), along a line) between arc ``low`` and ``high`` px from the first."""
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pixels, axis=0).T))])
+    chosen = pixels[(along >= low) & (along <= high)]
+    return chosen if len(chosen) else pixels[-1:]
+
+
+def _offset(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
+    """Mean signed distance (px) of ``points`` (K, 2) from the line through ``centre`` along ``axis``."""
+    relative = points - centre
+    return float(np.mean(axis[0] * relative[:, 1] - axis[1] * relative[:, 0]))
+
+
+def _stroke_side(
+    graph: _Graph, stroke: tuple[int, bool], after: list[tuple[int, bool]], reach: float, thread: cKDTree
+) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """The side of the merged stroke (the branch pass ``stroke``) that the thread leaves it by
+    (:func:`_loop_against_side`): the signed offset of the leaving line (the passes ``after``
+    the stroke's way back) from the stroke's pixels, and that line (a point, a unit
+    direction); None: the thread beyond is too short."""
+    pixels = _oriented(graph, *stroke)
+    leaving = _within(np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]]), 1.0, 2 * reach)
+    if len(leaving) < 3:
+        return None
+    centre = leaving.mean(axis=0)
+    axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
+    near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
+    return -_offset(thread.data[near], centre, axis), centre, axis
+
+
+def _loop_against_side(
+    graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, sides: dict
+) -> bool:
+    """Whether ``walk`` goes round a loop at the far end of merged arms the wrong way.
+
+    Where the walk passes a branch (the merged arms, the tip's arm at its start), a loop, and
+    the branch back, the thread leaves the merged stroke along its returning arm: the line of
+    the thread beyond the stroke (fitted over 2 ``reach`` px) runs along the stroke's side
+    that the returning arm lies on, half a thread's spacing from the stroke's pixels
+    (``thread``: a tree of the mask's pixels (u, v) of the thread; the mean over its pixels
+    near the branch, which a slit between the arms or a skeleton running along one arm does
+    not shift). The loop is left by its arm on that side. Offsets nearer than ``LATERAL`` px
+    tell nothing. ``sides``: the stroke's sides found so far, by (branch, reversed, next)."""
+    for position in range(1, len(walk) - 1):
+        (neck, rev), (loop, loop_rev), (back, back_rev) = walk[position - 1 : position + 2]
+        if back != neck or back_rev == rev or graph.branches[loop].a != graph.branches[loop].b:
+            continue
+        if sum(graph.branches[k].length for k, _ in walk[: position - 1]) >= reach:
+            continue  # the tip's arm joins the stroke from aside: a crossing, not merged arms
+        if position + 2 >= len(walk):
+            continue
+        key = (neck, rev, walk[position + 2])
+        if key not in sides:
+            sides[key] = _stroke_side(graph, walk[position - 1], walk[position + 2 :], reach, thread)
+        found = sides[key]
+        if found is None:
+            continue
+        side, centre, axis = found
+        arc = _oriented(graph, loop, loop_rev)
+        arms = _offset(_within(arc[::-1], reach / 2, reach), centre, axis)
+        arms -= _offset(_within(arc, reach / 2, reach), centre, axis)
+        if abs(side) >= LATERAL and abs(arms) >= LATERAL and side * arms < 0:
+            return True
+    return False
+
+
+def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> list[tuple[int, int]]:
+    """Positions (first, back) in ``walk`` of a branch passed down and back: merged arms,
+    round a free end at its far end (a hairpin's bend), or round a loop there with the tip
+    less than ``reach`` px before it (farther, the tip's arm may cross the thread)."""
+    found = []
+    for first in range(len(walk) - 1):
+        k, rev = walk[first]
+        far = graph.branches[k].a if rev else graph.branches[k].b
+        if walk[first + 1] == (k, not rev) and graph.kind[far] == "end":
+            found.append((first, first + 1))
+        elif first + 2 < len(walk) and walk[first + 2] == (k, not rev):
+            loop = graph.branches[walk[first + 1][0]]
+            if loop.a == loop.b and sum(graph.branches[j].length for j, _ in walk[:first]) < reach:
+                found.append((first, first + 2))
+    return found
+
+
+def _split_merged_arms(
+    graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, depth: np.ndarray
+) -> np.ndarray:
+    """``walk``'s pixels (N, 2) float64, those of merged arms moved from the stroke's centre
+    onto the arms: the way back to the side the thread leaves by (:func:`_stroke_side`), the
+    way down to the other, each by the stroke's half width ``depth`` (the distance to the
+    background at the pixel) less the leaving thread's, which is half the arms' spacing."""
+    pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
+    for first, back in _merged_passes(graph, walk, reach):
+        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
+        if found is None or abs(found[0]) < SPLIT_SIDE:
+            continue
+        side, _, axis = found
+        normal = np.array([-axis[1], axis[0]])
+        if back + 1 == len(pieces):
+            continue
+        leaving = np.rint(_within(np.vstack(pieces[back + 1 :]), 0.0, 2 * reach)).astype(int)
+        half = float(np.median(depth[leaving[:, 1], leaving[:, 0]]))
+        for position, sign in ((first, -1.0), (back, 1.0)):
+            pixels = pieces[position]
+            if len(pixels) < 2:
+                continue
+            tangent = np.gradient(uniform_filter1d(pixels, SMOOTHING, axis=0, mode="nearest"), axis=0)
+            normals = np.column_stack([-tangent[:, 1], tangent[:, 0]])
+            normals /= np.maximum(np.hypot(*normals.T), 1e-9)[:, None]
+            normals *= np.where(normals @ normal < 0, -1.0, 1.0)[:, None]
+            ints = np.rint(pixels).astype(int)
+            shift = np.clip(depth[ints[:, 1], ints[:, 0]] - half, 0.0, 2 * half)
+            pieces[position] = pixels + (sign * math.copysign(1.0, side) * shift)[:, None] * normals
+    return np.vstack(pieces)
 
 
 def hook_walk(
@@ -298,31 +440,39 @@ def hook_walk(
         gap = np.hypot(ends[:, 0] + u0 - tip[0], ends[:, 1] + v0 - tip[1])
         if gap.min() <= near:
             start = int(np.flatnonzero((su == ends[np.argmin(gap), 0]) & (sv == ends[np.argmin(gap), 1]))[0])
-    rim = (np.hypot(xx - cu, yy - cv) >= window_radius - 3) | (xx < 2) | (yy < 2)
+    rim = (np.hypot(xx - cu, yy - cv) >= window_radius - 3 - spur) | (xx < 2) | (yy < 2)
     rim |= (xx > width - 3) | (yy > height - 3)
     graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
     if graph is None:
         return None
     for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
-        for first, kind in ((True, graph.kind[branch.a]), (False, graph.kind[branch.b])):
-            if kind != "end" or branch.length < spur:
+        for first, node in ((True, branch.a), (False, branch.b)):
+            if graph.kind[node] != "end" or branch.length < spur:
                 continue
             end = branch.pixels[0] if first else branch.pixels[-1]
             outer = extend_to_end(own, end.astype(np.float64), step)
+            u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
+            if rim[v, u]:  # the thread cut by the window's edge, slanting: its skeleton stops short
+                graph.kind[node] = "rim"
             reach = float(np.hypot(*(outer - end)))
             if reach >= 1.0:
                 fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)
                 extra = end + fractions * (outer - end)
                 branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
     walks = _walks(graph, spur)
+    thread, sides = cKDTree(np.argwhere(own)[:, ::-1].astype(np.float64)), {}
     if not walks:
         return None
     scored = []
     for walk in walks:
         turn, path = _turning(graph, walk, step)
         scored.append((turn + 1e-3 * len(path), path))
+    for index, walk in enumerate(walks):
+        if _loop_against_side(graph, walk, step, thread, sides):
+            scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
-    path = scored[best][1]
+    depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    path = _split_merged_arms(graph, walks[best], step, thread, depth)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
     revisits = len(set(nodes)) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there

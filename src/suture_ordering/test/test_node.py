@@ -105,17 +105,24 @@ def _send_frame(publishers, stamp, left, right, hint, camera, encoding="mono8", 
     publishers[topics.RIGHT_MASK].publish(to_rclpy(image_message(right, "mono8", stamp, frame_right)))
 
 
+def _send_until_heard(executor, publishers, received, stamp, left, right, hint, camera) -> bool:
+    """Send the frame (sensor-data QoS is best effort) until every topic in ``received`` got a
+    message, at most 20 times; whether they all did."""
+    for _ in range(20):
+        _send_frame(publishers, stamp, left, right, hint, camera, executor=executor)
+        if spin_until(executor, lambda: all(received.values()), 0.5):
+            return True
+    return False
+
+
 def test_node_publishes_both_sequences_with_the_pair_stamp(ros):
     executor, _node, publishers, received = ros
     camera = StereoCamera.default(W, H)
     left, right, truth = _scene()
     _wait_for_subscribers(executor, publishers)
-    # The hint and camera_info first, then the masks (sensor-data QoS is best effort: resend until heard).
-    for _ in range(20):
-        _send_frame(publishers, STAMP, left, right, truth[0] + 1.0, camera, executor=executor)
-        if spin_until(executor, lambda: all(received.values()), 0.5):
-            break
-    assert all(received.values()), "no sequences after 20 frames"
+    # The hint and camera_info first, then the masks (resent until heard).
+    heard = _send_until_heard(executor, publishers, received, STAMP, left, right, truth[0] + 1.0, camera)
+    assert heard, "no sequences after 20 frames"
     left_seq, right_seq = received[topics.LEFT_SEQUENCE][0], received[topics.RIGHT_SEQUENCE][0]
     for message, frame in ((left_seq, topics.LEFT_FRAME), (right_seq, topics.RIGHT_FRAME)):
         assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == STAMP
@@ -184,11 +191,8 @@ def test_node_drops_bad_input_and_keeps_serving(ros, caplog):
             spin_until(executor, lambda: False, 0.1)
     assert not any(received.values()) and node.frames_published == 0
     good = STAMP + 100
-    for _ in range(20):
-        _send_frame(publishers, good, left, right, truth[0], camera, executor=executor)
-        if spin_until(executor, lambda: all(received.values()), 0.5):
-            break
-    assert all(received.values()), "the node stopped serving after bad input"
+    heard = _send_until_heard(executor, publishers, received, good, left, right, truth[0], camera)
+    assert heard, "the node stopped serving after bad input"
     stamp = received[topics.LEFT_SEQUENCE][0].header.stamp
     assert stamp.sec * 10**9 + stamp.nanosec == good
     assert len(node.dropped) >= 4  # each problem was reported (throttled, once per kind)
@@ -258,11 +262,8 @@ def test_points_bridged_under_a_wide_occluder_are_published_with_z_one(ros):
     cv2.fillConvexPoly(left, shaft, 0)
     cv2.fillConvexPoly(right, shaft - [30, 0], 0)
     _wait_for_subscribers(executor, publishers)
-    for _ in range(20):
-        _send_frame(publishers, STAMP, left, right, truth[0] + 1.0, camera, executor=executor)
-        if spin_until(executor, lambda: all(received.values()), 0.5):
-            break
-    assert all(received.values()), "no sequences after 20 frames"
+    heard = _send_until_heard(executor, publishers, received, STAMP, left, right, truth[0] + 1.0, camera)
+    assert heard, "no sequences after 20 frames"
     for topic, shift in ((topics.LEFT_SEQUENCE, 0), (topics.RIGHT_SEQUENCE, 30)):
         points = polygon_to_array(received[topic][0])
         assert set(np.unique(points[:, 2])) == {0.0, 1.0}

@@ -558,21 +558,72 @@ def test_hairpin_with_merged_arms_is_ordered_from_the_tip_inside_the_stroke():
     assert result.points[-1, 0] > 550
 
 
-def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm():
+@pytest.mark.parametrize("width", [2, 3])
+def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm(width):
     """Tip arm 25 px, a loop of radius 8 px turning by 230 degrees, then straight across the
-    tip arm 8 px from the tip and on."""
+    tip arm 8 px from the tip and on, slanting out of the hook's window (drawn 3 px wide, its
+    skeleton stops short of the window's edge by more than its width)."""
     radius, beta = 8.0, math.radians(50)
     to_line = radius * (1 + math.cos(beta)) / math.sin(beta)
     arm = 8.0 + radius * math.sin(beta) + math.cos(beta) * to_line
     truth = curve_from_curvature(
         (300.0, 240.0), math.pi, [(arm, 0.0), ((math.pi + beta) * radius, 1 / radius), (260.0, 0.0)]
     )
-    result = order_sequence(draw([truth], width=2), truth[0])
+    result = order_sequence(draw([truth], width=width), truth[0])
     check_follows(result.points, truth)
     # Round the loop first: the sequence reaches the loop's far side before the long thread.
     far_side = int(np.argmin(result.points[:, 0]))
     assert result.points[far_side, 0] < 300 - arm - radius + 2
     assert np.hypot(*(result.points[-1] - truth[-1])) < 4
+
+
+def teardrop(side: float) -> np.ndarray:
+    """Tip at (300, 240); its arm runs 20 px, bends outward (radius 12 px), round a bend of
+    radius 6 px and back so that the returning arm lies 2.5 px beside the tip arm (drawn 2 px
+    wide, the arms merge into one stroke ending in a loop), and on 220 px. ``side``: +1 or -1,
+    which way it curls."""
+    bend, counter, gap = 6.0, 12.0, 2.5
+    alpha = math.acos((gap / 2 + counter) / (bend + counter))
+    pieces = [(20.0, 0.0), (counter * alpha, -1 / counter), ((math.pi + 2 * alpha) * bend, 1 / bend)]
+    pieces += [(counter * alpha, -1 / counter), (220.0, 0.0)]
+    return curve_from_curvature((300.0, 240.0), math.pi + 0.3, [(length, side * k) for length, k in pieces])
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_loop_at_the_end_of_merged_arms_is_entered_on_the_tip_arms_side(side):
+    # The skeleton runs one line down the merged arms into a loop, the same both ways round;
+    # the thread leaving the stroke lies on the returning arm's side.
+    truth = teardrop(side)
+    result = order_sequence(draw([truth], width=2), truth[0])
+    check_follows(result.points, truth, tolerance=3.0)
+
+
+@pytest.mark.parametrize("heading", [0.0, 1.2])
+def test_merged_arms_at_1280_are_walked_on_each_arm_not_down_the_strokes_centre(heading):
+    # 1280 x 1024: a hairpin drawn 5 px wide whose arms lie 7 px apart merge into a stroke
+    # whose centre (the skeleton) lies 3.5 px from either arm.
+    gap, cos, sin = 7.0, math.cos(heading), math.sin(heading)
+    angle = np.linspace(-math.pi / 2, -3 * math.pi / 2, 24)
+    bend = np.column_stack([520 + gap / 2 * np.cos(angle), 500 + gap / 2 + gap / 2 * np.sin(angle)])
+    truth = np.vstack([line((600, 500), (520, 500)), bend, line((520, 500 + gap), (1100, 500 + gap))])
+    truth = (truth - (600, 500)) @ np.array([[cos, sin], [-sin, cos]]) + (600, 500)
+    result = order_sequence(draw([truth], width=5, shape=(1024, 1280)), truth[0])
+    off, _ = cKDTree(truth).query(result.points[:150])  # along the merged arms and back
+    assert np.percentile(off, 90) < 1.5
+    assert np.hypot(*(result.points[-1] - truth[-1])) < 4
+
+
+def test_tip_at_the_crossing_of_a_small_loop_leaving_the_window_slanting_is_ordered():
+    """A simulated hooked thread (640 x 480, true mask): its tip lies where the thread crosses
+    its tip arm, so no free end is near it; the thread leaves the hook's window slanting, where
+    the skeleton of the window's mask stops short of the window's edge by more than the spur
+    length. The walk leaves the window there."""
+    stored = np.load(Path(__file__).parent / "data" / "hooked_ring_at_tip.npz")
+    mask = np.unpackbits(stored["mask"])[: int(np.prod(stored["shape"]))].reshape(stored["shape"])
+    with pytest.raises(NoFreeEndError):
+        tip_from_hint(mask > 0, stored["hint"], 12.0)
+    result = order_sequence(mask, stored["hint"])
+    check_follows(result.points, stored["truth"].astype(float), tolerance=2.5)
 
 
 def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():

@@ -27,16 +27,22 @@ DEFAULT_EPOCHS = {"train": 20, "finetune": 10}
 
 
 def _training_arguments(parser: argparse.ArgumentParser, command: str) -> None:
-    from suture_segmentation.train import LOSSES, TrainConfig
-
-    defaults = TrainConfig()
     parser.add_argument("--images", required=True, help="folder of training images")
     parser.add_argument("--masks", required=True, help="folder of their masks (same file names)")
     parser.add_argument("--val-images", help="validation images (default: the training images)")
     parser.add_argument("--val-masks", help="validation masks")
     parser.add_argument("--limit", type=int, help="use only the first N training images (sorted by name)")
     parser.add_argument("--out", required=True, help="output folder: best.pt, last.pt, log.jsonl")
-    parser.add_argument("--epochs", type=int, default=DEFAULT_EPOCHS[command])
+    add_training_options(parser, DEFAULT_EPOCHS[command])
+
+
+def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
+    """The hyper-parameter options of :class:`~suture_segmentation.train.TrainConfig` (read back by
+    :func:`training_config`), shared by ``suture-seg train|finetune`` and ``suture-fewshot``."""
+    from suture_segmentation.train import LOSSES, TrainConfig
+
+    defaults = TrainConfig()
+    parser.add_argument("--epochs", type=int, default=epochs)
     parser.add_argument("--steps-per-epoch", type=int, default=defaults.steps_per_epoch)
     parser.add_argument("--batch-size", type=int, default=defaults.batch_size)
     parser.add_argument(
@@ -61,7 +67,9 @@ def _training_arguments(parser: argparse.ArgumentParser, command: str) -> None:
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="suture-seg", description=__doc__.split("\n\n")[0].strip("`: "))
+    parser = argparse.ArgumentParser(
+        prog="suture-seg", description=__doc__.split("\n\n")[0].replace("``", "")
+    )
     commands = parser.add_subparsers(dest="command", required=True)
 
     train = commands.add_parser("train", help="train every layer from scratch (M-oST, M-TOT)")
@@ -108,7 +116,8 @@ def _build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _config(args: argparse.Namespace):  # -> TrainConfig
+def training_config(args: argparse.Namespace):  # -> TrainConfig
+    """The :class:`~suture_segmentation.train.TrainConfig` of the options of :func:`add_training_options`."""
     from suture_segmentation.train import TrainConfig
 
     return TrainConfig(
@@ -139,7 +148,7 @@ def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
     from suture_segmentation.model import SutureUNet
     from suture_segmentation.train import finetune, train
 
-    config = _config(args)
+    config = training_config(args)
     training, validation = _datasets(args)
     meta = {"command": "suture-seg " + shlex.join(argv)}
     progress = not args.quiet
