@@ -69,8 +69,9 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
 
 
 #: A node's pixel (its rounded position) lies within this many pixels (Chebyshev) of a mask
-#: pixel: the node is within one sample spacing (<= 1 px) of a circle sample above 0.5, whose
-#: bilinear neighbours (one of them on the mask) lie within 1 px of its rounded position.
+#: pixel: 0.5 from the node, which lies within one sample spacing (<= 1 px) of a circle sample
+#: above 0.5; 0.5 from that sample to its rounded position, and 1 from there to the sample's
+#: bilinear neighbour on the mask.
 NODE_TO_MASK_PX = 3
 
 
