@@ -42,17 +42,16 @@ def admissible(
     reader, params = context.reader, context.params
     vertex = branch.vertices[-1]
     position = nodes.position
-    direction = position - vertex
     if heading is None:
         delta = np.zeros(len(position))
-    else:  # |direction| = r for nodes on the circle around the vertex
-        cos = direction.dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
+    else:  # |position - vertex| = r for nodes on the circle around the vertex
+        cos = (position - vertex).dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
         delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
     keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
     if not keep.all():
         if not keep.any():
             return None
-        position, delta, direction = position[keep], delta[keep], direction[keep]
+        position, delta = position[keep], delta[keep]
         widths = nodes.width[keep]
     else:
         widths = nodes.width
@@ -74,7 +73,7 @@ def admissible(
             keep[j] = False
             continue
         continuation[j] = gap_exit(
-            context, position[j], direction[j], tangent_at_vertex(branch), branch.consumed
+            context, position[j], position[j] - vertex, tangent_at_vertex(branch), branch.consumed
         )
         keep[j] = continuation[j] is not None
     if not keep.any():
