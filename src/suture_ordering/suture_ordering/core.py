@@ -316,7 +316,9 @@ def _right_view(
 ) -> OrderingResult:
     """The right view's ordering from the left tip: the free end on its epipolar band, or,
     when the left tip lies in a hook or the band has no free end, through the hook at the
-    pixel that the left tip's neighbourhood matches (:func:`suture_ordering.hooks.stereo_tip`)."""
+    pixel that the left tip's neighbourhood matches (:func:`suture_ordering.hooks.stereo_tip`).
+    A search from the band's free end is checked for a hook only where the left view had one:
+    another strand near the right tip is not read as a hook the left view did not see."""
     clean, scaled = prepared.clean.mask, prepared.scaled
     try:
         start = right_tip(clean, left_tip, disparity_range, scaled.row_tolerance, scaled.tip_radius)
@@ -336,6 +338,8 @@ def _right_view(
         if start is None:
             raise missing  # type: ignore[misc]
     result = _search(prepared, start, "epipolar", started)
+    if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
+        return result
     hook = hook_after_search(clean, start, start, result.points, scaled)
     return result if hook is None else _search(prepared, start, "epipolar", started, hook)
 

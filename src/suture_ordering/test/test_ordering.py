@@ -633,3 +633,16 @@ def test_right_views_tip_inside_a_hook_is_found_from_the_left_tip():
     ordering = order_stereo(left, right, truth[0] + (1.0, -1.0), StereoCamera.default(640, 480))
     check_follows(ordering.left, truth, tolerance=3.0)
     check_follows(ordering.right, truth - (26.0, 0.0), tolerance=3.0)
+
+
+def test_another_strand_near_the_right_tip_is_not_read_as_a_hook():
+    """A simulator frame (crossed, 640x480) whose second strand passes ~60 px from the cut tip,
+    nearer to it in the right view than in the left: the left view sees no hook, so the right
+    view, the same thread, follows its free end along the target rather than walking onto the
+    other strand (which took the grasp 35 mm away)."""
+    stored = np.load(Path(__file__).parent / "data" / "crossing_near_the_right_tip.npz")
+    size = int(np.prod(stored["shape"]))
+    left, right = (np.unpackbits(stored[view])[:size].reshape(stored["shape"]) for view in ("left", "right"))
+    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
+    check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0)
+    check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0)
