@@ -119,10 +119,6 @@ class OrderingParams:
             "by the last turn) instead of the last chord alone (the paper's literal Eq. 4)"
         ),
     )
-    max_predicted_turn: float = field(
-        default=math.radians(45.0),
-        metadata=described("largest turn the curvature prediction extrapolates (rad)", (0.0, math.pi)),
-    )
     bridge_turn_max: float = field(
         default=math.radians(45.0),
         metadata=described(
@@ -284,7 +280,6 @@ class OrderingParams:
             "junction_bend_max",
             "junction_tie",
             "sharp_step_turn",
-            "max_predicted_turn",
             "wide_arc_factor",
             "tip_radius_px",
             "min_blob_extent_px",
