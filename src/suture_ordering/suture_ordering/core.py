@@ -309,7 +309,7 @@ def order_stereo(
 def _right_view(
     prepared: _Prepared,
     left_prepared: _Prepared,
-    left_tip: np.ndarray,
+    left: OrderingResult,
     left_hooked: bool,
     disparity_range: tuple[float, float],
     started: float,
@@ -318,8 +318,12 @@ def _right_view(
     when the left tip lies in a hook or the band has no free end, through the hook at the
     pixel that the left tip's neighbourhood matches (:func:`suture_ordering.hooks.stereo_tip`).
     A search from the band's free end is checked for a hook only where the left view had one:
-    another strand near the right tip is not read as a hook the left view did not see."""
+    another strand near the right tip is not read as a hook the left view did not see. Through
+    a hook the left view started in, the walk follows ``left``'s sequence shifted by that
+    disparity (the guide of :func:`suture_ordering.hooks.hook_walk`): both views go round a
+    loop of merged arms the same way."""
     clean, scaled = prepared.clean.mask, prepared.scaled
+    left_tip, guide = left.tip, None
     try:
         start = right_tip(clean, left_tip, disparity_range, scaled.row_tolerance, scaled.tip_radius)
         missing = None
@@ -331,8 +335,14 @@ def _right_view(
         )
         if start is None and guess is not None and not on_mask(clean, guess):
             guess = None  # the tip is missing from this mask, not inside a stroke
+        if guess is not None and left_hooked:
+            guide = left.points + (guess - np.asarray(left_tip, dtype=np.float64))
         # Without a free end on the band, any walk from the matched pixel out of the window.
-        hook = None if guess is None else hook_start(clean, guess, scaled, require_return=start is not None)
+        hook = (
+            None
+            if guess is None
+            else hook_start(clean, guess, scaled, require_return=start is not None, guide=guide)
+        )
         if hook is not None:
             return _search(prepared, hook.points[0], "epipolar", started, hook)
         if start is None:
@@ -340,7 +350,7 @@ def _right_view(
     result = _search(prepared, start, "epipolar", started)
     if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
         return result
-    hook = hook_after_search(clean, start, start, result.points, scaled)
+    hook = hook_after_search(clean, start, start, result.points, scaled, guide)
     return result if hook is None else _search(prepared, start, "epipolar", started, hook)
 
 
@@ -361,7 +371,7 @@ def _order_pair(
     right_prepared = _prepare(right_mask, params, "right")
     d_min = float(camera.disparity(params.max_depth_m))
     d_max = float(camera.disparity(params.min_depth_m))
-    right = _right_view(right_prepared, left_prepared, left.tip, left_hooked, (d_min, d_max), started)
+    right = _right_view(right_prepared, left_prepared, left, left_hooked, (d_min, d_max), started)
     # Where one view's search stopped at a gap and the other's went on, follow the other view.
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
     sequences, filled = [], []

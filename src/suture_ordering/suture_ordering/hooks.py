@@ -42,6 +42,11 @@ either. The disparity of the tip's neighbourhood is the shift along the row that
 left mask's window around the left tip best onto the right mask, within the disparity range;
 the right view's walk starts at the shifted left tip. It is used when the left view started
 through a hook, and when the band holds no free end but the shifted tip lies on the mask.
+Where the arms lie on top of each other, the skeleton is the same both ways round a loop at
+their end and the least-turning rule may go round against the thread; with a *guide* (the left
+view's sequence shifted by that disparity) the right view's walk is chosen among those that
+stray least from it (:func:`_disagreement`, ``GUIDE_MARGIN``), so that both views go round the
+same way; of those, the least turning wins.
 """
 
 from __future__ import annotations
@@ -87,6 +92,13 @@ SIDE_PENALTY = math.pi
 LATERAL = 0.3
 #: Merged arms are moved apart where the thread leaves them at least this far (px) aside.
 SPLIT_SIDE = 0.5
+#: With a guide (the other view's walk), the walks that stray from it (:func:`_disagreement`)
+#: at most this many px (at 640 px) more than the nearest one agree with it; of those, the
+#: least turning wins.
+GUIDE_MARGIN = 1.0
+#: Arc (px at 640 px) by which a walk and its guide may be shifted along each other (their
+#: tips are found apart).
+GUIDE_SLACK = 6.0
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -403,8 +415,35 @@ def _split_merged_arms(
     return np.vstack(pieces)
 
 
+def _resampled(points: np.ndarray, spacing: float = 1.0) -> np.ndarray:
+    """``points`` ((K, 2), along a line) every ``spacing`` px of arc from the first."""
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    at = np.arange(0.0, along[-1] + 1e-9, spacing)
+    return np.column_stack([np.interp(at, along, points[:, 0]), np.interp(at, along, points[:, 1])])
+
+
+def _disagreement(path: np.ndarray, guide: np.ndarray, slack: float, q: float = 90.0) -> float:
+    """How far (px) ``path`` strays from ``guide`` ((K, 2) each, from the tip): of each point
+    of ``path`` (every 1 px of arc, over the shorter one's length), the distance to the nearest
+    point of ``guide`` within ``slack`` px of the same arc length; their ``q``-th percentile."""
+    a, b = _resampled(path), _resampled(guide)
+    count = min(len(a), len(b))
+    reach = math.ceil(slack)
+    shifts = np.arange(-reach, reach + 1)
+    index = np.clip(np.arange(count)[:, None] + shifts[None, :], 0, len(b) - 1)
+    distance = np.hypot(*(a[:count, None, :] - b[index]).transpose(2, 0, 1)).min(axis=1)
+    return float(np.percentile(distance, q))
+
+
 def hook_walk(
-    mask: np.ndarray, tip: np.ndarray, window_radius: float, step: float, spur: float, near: float
+    mask: np.ndarray,
+    tip: np.ndarray,
+    window_radius: float,
+    step: float,
+    spur: float,
+    near: float,
+    guide: np.ndarray | None = None,
+    scale: float = 1.0,
 ) -> tuple[np.ndarray, bool] | None:
     """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
     to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
@@ -412,7 +451,10 @@ def hook_walk(
 
     ``mask``: (H, W) bool or 0/1, the cleaned mask; ``step``: chord length (px) of the turns;
     ``spur``: branches to a free end shorter than this are thinning spurs; ``near``: a free end
-    this near to ``tip`` is the start. Also whether the walk comes back to a node it passed.
+    this near to ``tip`` is the start; ``guide``: (K, 2) pixels of the same thread from its tip
+    (the other view's, shifted by the disparity), or None; with it, only the walks within
+    ``GUIDE_MARGIN`` px of the one that strays least from it compete; ``scale``: the image
+    width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed.
     """
     height, width = mask.shape
     r = math.ceil(window_radius)
@@ -471,6 +513,16 @@ def hook_walk(
         if _loop_against_side(graph, walk, step, thread, sides):
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
+    if guide is not None:
+        offset = np.array([u0, v0], dtype=np.float64)
+        apart = [
+            _disagreement(
+                uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest") + offset, guide, GUIDE_SLACK * scale
+            )
+            for _, path in scored
+        ]
+        agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
+        best = min(agreeing, key=lambda k: scored[k][0])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
@@ -491,7 +543,11 @@ class HookStart:
 
 
 def hook_start(
-    mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams, require_return: bool = True
+    mask: np.ndarray,
+    tip: np.ndarray,
+    scaled: ScaledParams,
+    require_return: bool = True,
+    guide: np.ndarray | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``tip`` ((2,) (u, v), a hint or a free end) in ``mask``
     ((H, W) 0/1, the cleaned mask), or None when there is no hook there: the thread runs from
@@ -500,10 +556,19 @@ def hook_start(
 
     A hook is a walk that comes back to a place it has passed: a free end it turns back at
     (the bend of merged arms) or a junction it passes twice (a loop). ``require_return=False``:
-    any walk out of the window is taken.
+    any walk out of the window is taken. ``guide``: see :func:`hook_walk`.
     """
     window = HOOK_WINDOW * scaled.roi_radius
-    found = hook_walk(mask, tip, window, float(scaled.step_radius), SPUR * scaled.scale, NEAR * scaled.scale)
+    found = hook_walk(
+        mask,
+        tip,
+        window,
+        float(scaled.step_radius),
+        SPUR * scaled.scale,
+        NEAR * scaled.scale,
+        guide,
+        scaled.scale,
+    )
     if found is None:
         return None
     points, revisits = found
@@ -570,7 +635,12 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
 
 
 def hook_after_search(
-    mask: np.ndarray, hint: np.ndarray, tip: np.ndarray, points: np.ndarray, scaled: ScaledParams
+    mask: np.ndarray,
+    hint: np.ndarray,
+    tip: np.ndarray,
+    points: np.ndarray,
+    scaled: ScaledParams,
+    guide: np.ndarray | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
@@ -581,7 +651,7 @@ def hook_after_search(
     skipped = skipped_near_tip(mask, points, tip, scaled)
     if not (far or skipped or _returns_near_tip(points, tip, scaled)):
         return None
-    return hook_start(mask, hint, scaled, require_return=not skipped)
+    return hook_start(mask, hint, scaled, require_return=not skipped, guide=guide)
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

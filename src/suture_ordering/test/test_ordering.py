@@ -646,3 +646,17 @@ def test_another_strand_near_the_right_tip_is_not_read_as_a_hook():
     ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
     check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0)
     check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0)
+
+
+def test_right_view_goes_round_a_hooks_loop_the_way_the_left_view_does():
+    """A simulator frame (hooked, 640x480, true masks): the tip arm and the returning arm lie
+    on top of each other in a stroke 2 px wide that ends in a loop, the tip inside the stroke.
+    The right view's skeleton is the same both ways round the loop and its least-turning walk
+    went round against the thread (the grasp came out 34 mm off); the right view's walk now
+    follows the left view's, shifted by the tip's disparity."""
+    stored = np.load(Path(__file__).parent / "data" / "hooked_loop_merged_arms_stereo.npz")
+    size = int(np.prod(stored["shape"]))
+    left, right = (np.unpackbits(stored[view])[:size].reshape(stored["shape"]) for view in ("left", "right"))
+    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
+    check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0)
+    check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0)

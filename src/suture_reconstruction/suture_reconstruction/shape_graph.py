@@ -40,12 +40,16 @@ Unit choices (the paper gives none):
   strands of a self-crossing (0.3-0.7 mm apart in truth, less than the depth
   error) and the two arms of a hook or hairpin at the cut end (touching along
   1-10 mm), where the density penalty even makes the short cut cheaper. The
-  paper's 20 in Eq. 11 is therefore ``order_scale`` = 5 vertices (0.5 mm):
-  skipping 1 mm of a zig-zag costs twice its length, and the short cut between
-  the two arms of a 2 mm hairpin (an index difference of 40) costs
-  1 + e^6 ~ 400 times its length, more than walking round the bend. A scale
-  of 20 vertices (2 mm) would price it at 2 times its 0.3 mm, and Dijkstra
-  would take it, moving the grasp point by twice the hook's length.
+  paper's 20 in Eq. 11 is therefore ``order_scale`` = 3 vertices (0.3 mm):
+  skipping 0.5 mm of a zig-zag costs 1.7 times its length, and the short cut
+  between the two arms of a 2 mm hairpin (an index difference of 40) costs
+  1 + e^11 times its length, more than walking round the bend. A scale of 20
+  vertices (2 mm) would price it at 2 times its 0.3 mm, and Dijkstra would take
+  it, moving the grasp point by twice the hook's length. At 5 vertices the apex
+  of the tightest hairpins (radius 0.3 mm: 0.94 mm of arc, the arms 0.6 mm
+  apart) was still cut, 9 vertices for 1.8 times 0.6 mm, cheaper than going
+  round where the density penalty favours the touching arms: about 2 mm of arc
+  lost before the grasp point.
 * tau_L starts at 1 mm (10 vertex steps: consecutive vertices are always
   joined, and a hop may skip a zig-zag of up to 1 mm); it only grows where the
   vertex chain has a gap (a stretch without stereo pairs).
@@ -132,7 +136,7 @@ class ShapeGraphParams:
             (0.0, 0.1),
         ),
     )
-    order_scale: float = 5.0
+    order_scale: float = 3.0
     order_offset: float = 2.0
     max_tau_l: float = 0.1
 

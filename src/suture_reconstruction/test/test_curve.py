@@ -39,3 +39,22 @@ def test_thread_shorter_than_the_reserve_and_degenerate_frame():
     along_ray = np.column_stack([np.zeros(50), np.zeros(50), np.linspace(0.06, 0.12, 50)])
     with pytest.raises(ReconstructionError, match="viewing ray"):
         grasp_pose(fit_curve(along_ray, 0.001), 0.05)
+
+
+def test_a_hairpin_tighter_than_the_smoothing_keeps_its_arc_length():
+    # A cut end bent into a hairpin of radius 0.4 mm (arms 0.8 mm apart) after a 5 mm tip arm:
+    # the 1 mm smoothing cuts the bend, and the points beyond it must not move along the thread.
+    radius, step = 0.0004, 1e-5
+    arm = np.column_stack([np.arange(0.0, 0.005, step), np.zeros(500)])
+    angle = np.arange(0.0, np.pi, step / radius)
+    bend = np.column_stack([0.005 + radius * np.sin(angle), radius - radius * np.cos(angle)])
+    back = np.column_stack([np.arange(0.005, -0.045, -step), np.full(5000, 2 * radius)])
+    planar = np.vstack([arm, bend, back])
+    thread = np.column_stack([planar, np.full(len(planar), 0.1)])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(thread, axis=0), axis=1))])
+    curve = fit_curve(thread[::10], smoothing=0.001)
+    assert curve.length == pytest.approx(arc[-1], abs=3e-4)
+    for at in (0.02, 0.04):
+        true = thread[np.searchsorted(arc, at)]
+        assert np.linalg.norm(curve.at(at) - true) < 3e-4
+        assert np.linalg.norm(grasp_pose(curve, at).position - true) < 3e-4

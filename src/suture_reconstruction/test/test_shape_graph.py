@@ -112,7 +112,7 @@ def test_vertex_penalties_follow_eq_9():
     expected0 = 2.0 / 2 * np.exp(-2 / 10) * (np.log(0.4 + 1) + np.log(1.0 + 1))
     assert p1[0] == pytest.approx(expected0)
     assert p1[3] == pytest.approx(2.0 * np.log(1.0 + 1.0))
-    assert order_penalty(np.array(0), np.array(40), params) == pytest.approx(1 + np.exp(40 / 5 - 2))
+    assert order_penalty(np.array(0), np.array(40), params) == pytest.approx(1 + np.exp(40 / 3 - 2))
 
 
 def loop_with_close_strands(gap: float, step: float = 1e-4) -> tuple[np.ndarray, int, int]:
@@ -205,3 +205,19 @@ def test_removes_zig_zags_and_keeps_the_ends():
 def test_too_few_vertices():
     with pytest.raises(TooFewPointsError):
         optimise_shape(np.zeros((1, 3)))
+
+
+def test_the_apex_of_a_tight_hairpin_is_not_cut():
+    # A cut end bent into a hairpin of radius 0.3 mm (the arms 0.6 mm apart, their vertices
+    # dense where they touch): the path goes round the apex instead of across it.
+    radius, step = 0.0003, 1e-4
+    arm = np.column_stack([np.arange(0.0, 0.005, step), np.zeros(50)])
+    angle = np.arange(step / radius, np.pi, step / radius)
+    bend = np.column_stack([0.005 + radius * np.sin(angle), radius - radius * np.cos(angle)])
+    back = np.column_stack([np.arange(0.005, -0.02, -step), np.full(250, 2 * radius)])
+    planar = np.vstack([arm, bend, back])
+    vertices = np.column_stack([planar, np.full(len(planar), 0.1)])
+    length = float(np.linalg.norm(np.diff(vertices, axis=0), axis=1).sum())
+    result = optimise_shape(vertices)
+    assert result.length == pytest.approx(length, abs=2e-4)
+    assert len(vertices) - len(result.indices) <= 2
