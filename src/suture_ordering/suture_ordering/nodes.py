@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from suture_ordering.cleaning import CleanMask
+from suture_ordering.compiled import circle_runs
 
 #: Share of a smooth (Hermite) step that may leave the zone.
 MAX_OUTSIDE_ZONE = 0.1
@@ -51,12 +52,10 @@ def circle_samples(r: int) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class _Circle:
     """What :meth:`MaskReader.nodes` needs of the circle of radius r, computed once per radius:
-    the samples of :func:`circle_samples`, their number n, the arc between two samples (px)
-    and the angle between two samples (rad)."""
+    the sample offsets of :func:`circle_samples`, the arc between two samples (px) and the
+    angle between two samples (rad)."""
 
     offsets: np.ndarray
-    index: np.ndarray
-    n: int
     spacing: float
     angle_step: float
 
@@ -65,7 +64,7 @@ class _Circle:
 def _circle(r: int) -> _Circle:
     offsets, index = circle_samples(r)
     n = len(index)
-    return _Circle(offsets, index, n, 2 * math.pi * r / n, 2 * math.pi / n)
+    return _Circle(offsets, 2 * math.pi * r / n, 2 * math.pi / n)
 
 
 @functools.lru_cache(maxsize=256)
@@ -165,49 +164,23 @@ class MaskReader:
         one node per edge, half a width inside it.
         """
         circle = _circle(r)
-        n = circle.n
         centre = (vertex + self.pad).astype(np.float32)
         values = self._bilinear(circle.offsets + centre, centre, r)
-        k0 = int(values.argmin())
-        if values[k0] > 0.5:
-            return None  # the circle lies wholly inside the mask: no thread structure
-        # Read from the emptiest sample on, so that no run wraps round the end.
-        rolled = np.concatenate((values[k0:], values[:k0]))
-        inside = rolled > 0.5
-        edges = (inside[1:] != inside[:-1]).nonzero()[0].tolist()
-        if not edges:
-            return None
-        if inside[-1]:  # a run still open at the end closes on the last sample
-            edges.append(n - 2)
-        weight = rolled.cumsum()
-        moment = (rolled * circle.index).cumsum()
-        # Each run (a few per circle) on numpy scalars: float32 where the arrays are float32.
-        centres: list[float] = []
-        widths: list[np.float32] = []
-        split: list[tuple[float, np.float32, np.float32]] = []
-        for start, end in zip(edges[0::2], edges[1::2], strict=True):
-            lo, hi = start, end + 1  # with the partial edge samples
-            first = rolled[lo]
-            mass = weight[hi] - weight[lo] + first
-            middle = (float(moment[hi]) - float(moment[lo]) + float(first) * lo) / float(mass) + k0
-            arc = mass * circle.spacing
-            if width is not None and arc > self.wide_arc_factor * width:
-                split.append((middle, arc, (mass - width / circle.spacing) / 2))
-            else:
-                centres.append(middle)
-                widths.append(arc)
-        if split:  # one node per edge, half a width inside it
-            centres += [middle - float(half) for middle, _, half in split]
-            centres += [middle + float(half) for middle, _, half in split]
-            widths += [arc for _, arc, _ in split] * 2
-        angle = np.array(centres) * circle.angle_step
+        if width is None:
+            centres, widths = circle_runs(values, circle.spacing, math.inf, 0.0)
+        else:
+            centres, widths = circle_runs(
+                values, circle.spacing, self.wide_arc_factor * width, width / circle.spacing
+            )
+        if not len(centres):
+            return None  # no thread on the circle, or the circle lies wholly inside the mask
+        angle = centres * circle.angle_step
         position = np.empty((len(angle), 2))
         np.cos(angle, out=position[:, 0])
         np.sin(angle, out=position[:, 1])
         position *= r
         position += vertex
-        widths_array = np.array(widths, dtype=np.float32)
-        return Nodes(position, widths_array, r)
+        return Nodes(position, widths, r)
 
     def _bilinear(self, where: np.ndarray, centre: np.ndarray, reach: int) -> np.ndarray:
         """(n,) the mask sampled bilinearly (cv2.remap) at ``where``, (n, 1, 2) float32 points of

@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from suture_ordering.bridging import gap_exit
+from suture_ordering.compiled import unvisited_out_of_zone
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import turn_angles
 from suture_ordering.junctions import STOP, decided_across_junction, junction_step
@@ -47,17 +48,28 @@ def admissible(
     else:  # |position - vertex| = r for nodes on the circle around the vertex
         cos = (position - vertex).dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
         delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
-    keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
-    if not keep.all():
-        if not keep.any():
+    keep, out = unvisited_out_of_zone(
+        position,
+        delta,
+        params.tau_v,
+        consumed_flat,
+        reader.zone_flat,
+        reader.padded_width,
+        reader.pad,
+        float(vertex[0]),
+        float(vertex[1]),
+        nodes.radius,
+    )
+    kept = np.count_nonzero(keep)
+    if kept < len(keep):
+        if not kept:
             return None
-        position, delta = position[keep], delta[keep]
+        position, delta, out = position[keep], delta[keep], out[keep]
         widths = nodes.width[keep]
     else:
         widths = nodes.width
-    out = reader.out_of_zone(vertex, position, nodes.radius)
     continuation: list[np.ndarray | None] = [None] * len(position)
-    if not out.any():
+    if not np.count_nonzero(out):
         return Candidates(
             position,
             np.full(len(position), float(nodes.radius)),

@@ -1,0 +1,107 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The compiled kernels give, to the bit, what the numpy code they replace gave."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from suture_ordering.compiled import circle_runs, unvisited_out_of_zone
+
+
+def _circle_runs_numpy(
+    values: np.ndarray, spacing: float, width: float | None, factor: float
+) -> tuple[list[float], list[np.float32]] | None:
+    """The numpy reading of one circle that :func:`circle_runs` replaces."""
+    n = len(values)
+    index = np.arange(n, dtype=np.float64)
+    k0 = int(values.argmin())
+    if values[k0] > 0.5:
+        return None
+    rolled = np.concatenate((values[k0:], values[:k0]))
+    inside = rolled > 0.5
+    edges = (inside[1:] != inside[:-1]).nonzero()[0].tolist()
+    if not edges:
+        return None
+    if inside[-1]:
+        edges.append(n - 2)
+    weight = rolled.cumsum()
+    moment = (rolled * index).cumsum()
+    centres, widths, split = [], [], []
+    for start, end in zip(edges[0::2], edges[1::2], strict=True):
+        lo, hi = start, end + 1
+        first = rolled[lo]
+        mass = weight[hi] - weight[lo] + first
+        middle = (float(moment[hi]) - float(moment[lo]) + float(first) * lo) / float(mass) + k0
+        arc = mass * spacing
+        if width is not None and arc > factor * width:
+            split.append((middle, arc, (mass - width / spacing) / 2))
+        else:
+            centres.append(middle)
+            widths.append(arc)
+    centres += [middle - float(half) for middle, _, half in split]
+    centres += [middle + float(half) for middle, _, half in split]
+    widths += [arc for _, arc, _ in split] * 2
+    return centres, widths
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_circle_runs_matches_numpy(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(8, 160))
+    # Runs of mask with soft edges, as the bilinear samples of a mask give them.
+    values = (rng.random(n) < rng.uniform(0.1, 0.9)).astype(np.float32)
+    soft = rng.random(n) < 0.3
+    values[soft] = rng.random(int(np.count_nonzero(soft)))
+    if seed % 10 == 0:
+        values = np.full(n, 0.75, dtype=np.float32)  # a circle inside the mask
+    spacing = 2 * math.pi * rng.uniform(2, 25) / n
+    for width in (None, float(rng.uniform(0.5, 6.0))):
+        expected = _circle_runs_numpy(values, spacing, width, 1.6)
+        wide, samples = (math.inf, 0.0) if width is None else (1.6 * width, width / spacing)
+        centres, widths = circle_runs(values, spacing, wide, samples)
+        if expected is None:
+            assert len(centres) == 0 and len(widths) == 0
+            continue
+        np.testing.assert_array_equal(centres, np.array(expected[0]))
+        np.testing.assert_array_equal(widths, np.array(expected[1], dtype=np.float32))
+        assert widths.dtype == np.float32
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_unvisited_out_of_zone_matches_numpy(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    pad, height, width = 12, 40, 50
+    zone = (rng.random((height + 2 * pad, width + 2 * pad)) < 0.6).astype(np.uint8)
+    consumed = (rng.random(zone.shape) < 0.3).astype(np.uint8)
+    padded_width = zone.shape[1]
+    vertex = rng.uniform(10, 35, 2)
+    r = int(rng.integers(1, 9))
+    angle = rng.uniform(0, 2 * math.pi, int(rng.integers(1, 7)))
+    position = vertex + r * np.column_stack((np.cos(angle), np.sin(angle)))
+    delta = rng.uniform(0, math.pi, len(angle))
+    keep, out = unvisited_out_of_zone(
+        position,
+        delta,
+        2.0,
+        consumed.reshape(-1),
+        zone.reshape(-1),
+        padded_width,
+        pad,
+        vertex[0],
+        vertex[1],
+        r,
+    )
+    weights = np.array([1, padded_width])
+    flat = np.rint(position).astype(np.intp).dot(weights) + pad * (1 + padded_width)
+    np.testing.assert_array_equal(keep, (consumed.reshape(-1)[flat] == 0) & (delta < 2.0))
+    if r < 2:
+        np.testing.assert_array_equal(out, 0)
+        return
+    samples = (np.arange(1, r) / r)[None, :, None] * (position - vertex)[:, None, :]
+    samples += vertex + pad + 0.5
+    expected = (zone.reshape(-1)[samples.astype(np.intp).dot(weights)] == 0).sum(axis=1)
+    np.testing.assert_array_equal(out[keep], expected[keep])
+    np.testing.assert_array_equal(out[~keep], 0)
