@@ -549,12 +549,9 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     window = np.ascontiguousarray(
         mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8
     )
-    _, pieces = cv2.connectedComponents(window, connectivity=8)
     on = np.argwhere(window > 0)
     if on.size == 0:
         return False
-    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
-    thread = pieces == pieces[nearest[0], nearest[1]]
     # The path visits the thread's whole cross-section: its half width plus the detection radius.
     polyline = np.rint(points - np.array([u0, v0])).astype(np.int32)
     on_window = (
@@ -566,7 +563,13 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
     inside = np.zeros_like(window)
     cv2.circle(inside, (cu - u0, cv - v0), r - scaled.step_radius, 1, cv2.FILLED)
-    return int((thread & (visited == 0) & (inside > 0)).sum()) > SKIPPED * scaled.scale
+    unvisited = (window > 0) & (visited == 0) & (inside > 0)
+    if np.count_nonzero(unvisited) <= SKIPPED * scaled.scale:
+        return False  # too few unvisited pixels of any thread in the window
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
+    thread = pieces == pieces[nearest[0], nearest[1]]
+    return int((thread & unvisited).sum()) > SKIPPED * scaled.scale
 
 
 def hook_after_search(
@@ -594,9 +597,11 @@ def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams)
     if len(near) < 2:
         return False
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(near, axis=0).T))])
-    gaps = np.hypot(*(near[:, None, :] - near[None, :, :]).transpose(2, 0, 1))
-    apart = np.abs(along[:, None] - along[None, :]) > 2 * scaled.roi_radius
-    return bool(np.any(apart & (gaps < max(1.0, scaled.detect_radius))))
+    radius = max(1.0, scaled.detect_radius)
+    # Only the pairs of points close together (a k-d tree's, with a little slack) are measured.
+    i, j = cKDTree(near).query_pairs(radius * (1 + 1e-6) + 1e-6, output_type="ndarray").T
+    gaps = np.hypot(*(near[i] - near[j]).T)
+    return bool(np.any((np.abs(along[i] - along[j]) > 2 * scaled.roi_radius) & (gaps < radius)))
 
 
 def stereo_tip(
