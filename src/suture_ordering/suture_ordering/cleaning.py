@@ -102,7 +102,7 @@ def clean_mask(
     inner = (slice(pad, pad + height), slice(pad, pad + width))
     padded = np.zeros((height + 2 * pad, width + 2 * pad), dtype=np.uint8)
     padded[inner] = binary
-    zone = np.zeros_like(padded)
+    zone = np.zeros(padded.shape, dtype=np.uint8)  # calloc'd, unlike np.zeros_like
     if zone_margin > 0:
         size = 2 * zone_margin + 1
         cv2.dilate(binary, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)), dst=zone[inner])

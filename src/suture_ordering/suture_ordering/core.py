@@ -16,6 +16,7 @@ into a hook or hairpin starts with a walk through the hook (:mod:`suture_orderin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass
 
@@ -106,6 +107,12 @@ class _Prepared:
     searcher: Searcher
 
 
+@functools.lru_cache(maxsize=32)
+def _scaled_params(params: OrderingParams, width: int) -> ScaledParams:
+    """The parameters in pixels for masks ``width`` px wide, computed once per (params, width)."""
+    return ScaledParams.from_params(params, width)
+
+
 def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Prepared:
     binary = as_binary_mask(mask, view)
     fraction = np.count_nonzero(binary) / binary.size
@@ -116,7 +123,7 @@ def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Pre
             "or encoding?)",
             view,
         )
-    scaled = ScaledParams.from_params(params, binary.shape[1])
+    scaled = _scaled_params(params, binary.shape[1])
     pad = scaled.max_reach + scaled.step_radius + 3
     clean = clean_mask(binary, scaled, int(params.zone_margin_px), pad, view)
     return _Prepared(clean, scaled, Searcher(clean, params, scaled))

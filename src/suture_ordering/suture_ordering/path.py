@@ -123,14 +123,14 @@ def advance(
     params, scaled, pad = context.params, context.scaled, context.reader.pad
     start = branch.vertices[-1]
     chord = target - start
-    length = float(np.hypot(*chord))
+    length = float(np.hypot(chord[0], chord[1]))
     if continuation is None:
         n = max(1, math.ceil(length))
         segment = start + chord_steps(n) * chord
         cv2.line(
             branch.consumed,
-            fixed_point(start + pad),
-            fixed_point(target + pad),
+            fixed_point((float(start[0]) + pad, float(start[1]) + pad)),
+            fixed_point((float(target[0]) + pad, float(target[1]) + pad)),
             1,
             context.thickness,
             cv2.LINE_8,
