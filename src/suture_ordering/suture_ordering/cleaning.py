@@ -83,6 +83,14 @@ def clean_mask(
     binary = as_binary_mask(mask, view)
     if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
         binary = binary.copy()
+    return clean_binary(binary, scaled, zone_margin, pad, view)
+
+
+def clean_binary(
+    binary: np.ndarray, scaled: ScaledParams, zone_margin: int, pad: int, view: str | None = None
+) -> CleanMask:
+    """:func:`clean_mask` of a mask already checked by :func:`as_binary_mask` ((H, W) uint8 0/1,
+    not empty), which is cleaned in place (pass a copy to keep it)."""
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is not None:
         parents = hierarchy[0][:, 3]

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from suture_common.camera import StereoCamera
-from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
+from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
 from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError
 from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence
@@ -125,7 +125,9 @@ def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Pre
         )
     scaled = _scaled_params(params, binary.shape[1])
     pad = scaled.max_reach + scaled.step_radius + 3
-    clean = clean_mask(binary, scaled, int(params.zone_margin_px), pad, view)
+    if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
+        binary = binary.copy()
+    clean = clean_binary(binary, scaled, int(params.zone_margin_px), pad, view)
     return _Prepared(clean, scaled, Searcher(clean, params, scaled))
 
 

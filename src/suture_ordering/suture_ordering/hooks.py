@@ -549,8 +549,7 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     window = np.ascontiguousarray(
         mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8
     )
-    on = np.argwhere(window > 0)
-    if on.size == 0:
+    if not cv2.countNonZero(window):
         return False
     # The path visits the thread's whole cross-section: its half width plus the detection radius.
     polyline = np.rint(points - np.array([u0, v0])).astype(np.int32)
@@ -560,16 +559,40 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     depth = cv2.distanceTransform(window, cv2.DIST_L2, 3)
     half = float(np.median(depth[polyline[on_window, 1], polyline[on_window, 0]])) if on_window.any() else 1.0
     visited = np.zeros_like(window)
-    cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
+    thickness = 2 * max(1, round(half + scaled.detect_radius)) + 1
+    cv2.polylines(visited, _pieces_near(polyline, window.shape, thickness), False, 1, thickness)
     inside = np.zeros_like(window)
     cv2.circle(inside, (cu - u0, cv - v0), r - scaled.step_radius, 1, cv2.FILLED)
     unvisited = (window > 0) & (visited == 0) & (inside > 0)
     if np.count_nonzero(unvisited) <= SKIPPED * scaled.scale:
         return False  # too few unvisited pixels of any thread in the window
     _, pieces = cv2.connectedComponents(window, connectivity=8)
+    on = np.argwhere(window > 0)
     nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
     thread = pieces == pieces[nearest[0], nearest[1]]
     return int((thread & unvisited).sum()) > SKIPPED * scaled.scale
+
+
+def _pieces_near(polyline: np.ndarray, shape: tuple[int, int], thickness: int) -> list[np.ndarray]:
+    """The stretches of ``polyline`` ((N, 2) int32 (u, v)) whose segments come within
+    ``thickness`` px of an image of ``shape`` (H, W): drawn with that thickness, they paint the
+    image's pixels that the whole polyline paints (each segment is drawn on its own, with
+    round caps), and the other segments none."""
+    if len(polyline) < 2:
+        return [polyline]
+    low = np.minimum(polyline[:-1], polyline[1:])
+    high = np.maximum(polyline[:-1], polyline[1:])
+    near = (
+        (high >= -thickness).all(axis=1)
+        & (low[:, 0] < shape[1] + thickness)
+        & (low[:, 1] < shape[0] + thickness)
+    )
+    segments = np.flatnonzero(near)
+    if not len(segments):
+        return []
+    starts = np.flatnonzero(np.diff(segments, prepend=-2) > 1)
+    ends = np.append(starts[1:], len(segments)) - 1
+    return [polyline[segments[a] : segments[b] + 2] for a, b in zip(starts, ends, strict=True)]
 
 
 def hook_after_search(
