@@ -152,9 +152,33 @@ def unvisited_out_of_zone(
     return keep, out
 
 
+@numba.njit(cache=True, nogil=True)
+def circle_points(
+    offsets: np.ndarray, vertex_u: float, vertex_v: float, pad: int, reach: int
+) -> tuple[np.ndarray, int, int]:
+    """The points where a circle around a vertex is sampled, in a window of the padded mask.
+
+    ``offsets``: (n, 1, 2) float32 samples of the circle (:func:`suture_ordering.nodes.circle_samples`);
+    ``vertex_u``, ``vertex_v``: the vertex (image pixels); ``pad``: the padding of the mask;
+    ``reach``: the circle's radius (px). The window's corner (u0, v0) lies ``reach + 2`` px
+    up and left of the vertex's pixel in the padded mask (an integer: the points keep their
+    fractions exactly). Returns the (n, 1, 2) float32 points relative to the corner, computed as
+    ``(offsets + float32(vertex + pad)) - (u0, v0)`` in float32, and u0, v0.
+    """
+    centre_u, centre_v = np.float32(vertex_u + pad), np.float32(vertex_v + pad)
+    u0, v0 = int(centre_u) - reach - 2, int(centre_v) - reach - 2
+    corner_u, corner_v = np.float32(u0), np.float32(v0)
+    where = np.empty_like(offsets)
+    for i in range(offsets.shape[0]):
+        where[i, 0, 0] = np.float32(np.float32(offsets[i, 0, 0] + centre_u) - corner_u)
+        where[i, 0, 1] = np.float32(np.float32(offsets[i, 0, 1] + centre_v) - corner_v)
+    return where, u0, v0
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel, so that no search pays for it."""
     circle_runs(np.array([0.0, 1.0, 1.0, 0.0], dtype=np.float32), 1.0, np.inf, 0.0)
+    circle_points(np.zeros((8, 1, 2), dtype=np.float32), 0.0, 0.0, 2, 1)
     raster = np.zeros(25, dtype=np.uint8)
     unvisited_out_of_zone(np.full((1, 2), 2.0), np.zeros(1), 1.0, raster, raster, 5, 0, 0.0, 0.0, 2)
 

@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from suture_ordering.cleaning import CleanMask
-from suture_ordering.compiled import circle_runs
+from suture_ordering.compiled import circle_points, circle_runs
 
 #: Share of a smooth (Hermite) step that may leave the zone.
 MAX_OUTSIDE_ZONE = 0.1
@@ -164,8 +164,12 @@ class MaskReader:
         one node per edge, half a width inside it.
         """
         circle = _circle(r)
-        centre = (vertex + self.pad).astype(np.float32)
-        values = self._bilinear(circle.offsets + centre, centre, r)
+        where, u0, v0 = circle_points(circle.offsets, float(vertex[0]), float(vertex[1]), self.pad, r)
+        if self._window_fits(u0, v0, r):
+            values = self._remap_window(where, u0, v0, r)
+        else:  # beyond the padding (the search stays within it)
+            centre = (vertex + self.pad).astype(np.float32)
+            values = self._bilinear(circle.offsets + centre, centre, r)
         if width is None:
             centres, widths = circle_runs(values, circle.spacing, math.inf, 0.0)
         else:
@@ -191,12 +195,22 @@ class MaskReader:
         it keep their fractions exactly and the samples are those of the whole mask.
         """
         u0, v0 = int(centre[0]) - reach - 2, int(centre[1]) - reach - 2
-        size = 2 * reach + 5
-        if u0 < 0 or v0 < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
+        if not self._window_fits(u0, v0, reach):
             # Beyond the padding (the search stays within it): cv2.remap's own border handling.
             return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
-        window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
         where -= np.array((u0, v0), dtype=np.float32)
+        return self._remap_window(where, u0, v0, reach)
+
+    def _window_fits(self, u0: int, v0: int, reach: int) -> bool:
+        """Whether the window of :meth:`_remap_window` at (u0, v0) lies within the padded arrays."""
+        size = 2 * reach + 5
+        return u0 >= 0 and v0 >= 0 and u0 + size <= self.padded_width and v0 + size <= self.padded_height
+
+    def _remap_window(self, where: np.ndarray, u0: int, v0: int, reach: int) -> np.ndarray:
+        """(n,) the mask sampled bilinearly at ``where`` ((n, 1, 2) float32 points relative to the
+        window's corner (u0, v0), within ``reach`` + 2 px of the window's centre)."""
+        size = 2 * reach + 5
+        window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
         return cv2.remap(window, where, None, cv2.INTER_LINEAR).reshape(-1)
 
     def out_of_zone(self, start: np.ndarray, ends: np.ndarray, r: int) -> np.ndarray:

@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from suture_ordering.compiled import circle_runs, unvisited_out_of_zone
+from suture_ordering.compiled import circle_points, circle_runs, unvisited_out_of_zone
+from suture_ordering.nodes import circle_samples
 
 
 def _circle_runs_numpy(
@@ -105,3 +106,19 @@ def test_unvisited_out_of_zone_matches_numpy(seed: int) -> None:
     expected = (zone.reshape(-1)[samples.astype(np.intp).dot(weights)] == 0).sum(axis=1)
     np.testing.assert_array_equal(out[keep], expected[keep])
     np.testing.assert_array_equal(out[~keep], 0)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_circle_points_matches_numpy(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        r, pad = int(rng.integers(1, 30)), int(rng.integers(30, 80))
+        vertex = rng.uniform(0, 1300, 2)
+        offsets = circle_samples(r)[0]
+        where, u0, v0 = circle_points(offsets, vertex[0], vertex[1], pad, r)
+        centre = (vertex + pad).astype(np.float32)
+        assert (u0, v0) == (int(centre[0]) - r - 2, int(centre[1]) - r - 2)
+        expected = offsets + centre
+        expected -= np.array((u0, v0), dtype=np.float32)
+        np.testing.assert_array_equal(where, expected)
+        assert where.dtype == np.float32
