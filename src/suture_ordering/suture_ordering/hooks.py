@@ -59,7 +59,7 @@ from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
 from suture_ordering.params import ScaledParams
-from suture_ordering.path import Branch, advance
+from suture_ordering.path import Branch, advance, advance_along
 from suture_ordering.tip import extend_to_end, free_ends
 
 #: At most this many branches in a hook's graph (more: not a hook; the walk is not searched).
@@ -529,9 +529,12 @@ def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
     step = float(context.scaled.step_radius)
     last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
-    for point in points[1:last_steps]:
-        if math.hypot(*(point - branch.vertices[-1])) >= DENSE:
-            advance(context, branch, point, start.width)
+    chosen, (last_u, last_v) = [], branch.vertices[-1].tolist()
+    for k, (u, v) in enumerate(points[1:last_steps].tolist()):
+        if math.hypot(u - last_u, v - last_v) >= DENSE:
+            chosen.append(k + 1)
+            last_u, last_v = u, v
+    advance_along(context, branch, points[chosen], start.width)
     for mark in (along[-1] - step, along[-1]):
         point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
         if math.hypot(*(point - branch.vertices[-1])) >= 1.0:

@@ -152,7 +152,11 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
                 # Equidistant nodes inside the zone: every parameter set prefers the smallest
                 # turn, and no farther node can do better if even the largest ε3 keeps that
                 # cost below the cheapest node one pixel farther (no cost matrix needed).
-                turns = first.delta if not first.bridge.any() else np.where(first.bridge, np.inf, first.delta)
+                turns = (
+                    np.where(first.bridge, np.inf, first.delta)
+                    if np.count_nonzero(first.bridge)
+                    else first.delta
+                )
                 smallest = int(turns.argmin())
                 turn = float(turns[smallest])
                 if turn < math.inf and math.exp(tuning.eps3_max * math.sin(turn / 2)) <= (r_s + 1) / r_s:
