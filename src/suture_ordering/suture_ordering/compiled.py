@@ -12,6 +12,8 @@ when this module is imported, so no ordering pays for the compilation.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -175,10 +177,30 @@ def circle_points(
     return where, u0, v0
 
 
+@numba.njit(cache=True, nogil=True)
+def chord_points(
+    start_u: float, start_v: float, target_u: float, target_v: float
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """A step along the chord start -> target: the chord ((2,) float64 (u, v)), its length (px)
+    and its points after the start, n = max(1, ceil(length)) of them ((n, 2) float64), at the
+    fractions 1/n .. n/n of the chord: ``start + fraction * chord``."""
+    chord = np.empty(2)
+    chord[0], chord[1] = target_u - start_u, target_v - start_v
+    length = np.hypot(chord[0], chord[1])
+    n = max(1, math.ceil(length))
+    points = np.empty((n, 2))
+    for i in range(n):
+        fraction = (i + 1) / n
+        points[i, 0] = start_u + fraction * chord[0]
+        points[i, 1] = start_v + fraction * chord[1]
+    return chord, length, points
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel, so that no search pays for it."""
     circle_runs(np.array([0.0, 1.0, 1.0, 0.0], dtype=np.float32), 1.0, np.inf, 0.0)
     circle_points(np.zeros((8, 1, 2), dtype=np.float32), 0.0, 0.0, 2, 1)
+    chord_points(0.0, 0.0, 1.0, 1.0)
     raster = np.zeros(25, dtype=np.uint8)
     unvisited_out_of_zone(np.full((1, 2), 2.0), np.zeros(1), 1.0, raster, raster, 5, 0, 0.0, 0.0, 2)
 

@@ -23,12 +23,12 @@ Detected nodes.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
+from suture_ordering.compiled import chord_points
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import LINE_SHIFT, fixed_point, hermite, rotate, signed_angle
 
@@ -122,11 +122,10 @@ def advance(
     along ``continuation`` (across a gap when ``bridge``, else across a junction)."""
     pad = context.reader.pad
     start = branch.vertices[-1]
-    chord = target - start
-    length = float(np.hypot(chord[0], chord[1]))
     if continuation is None:
-        n = max(1, math.ceil(length))
-        segment = start + chord_steps(n) * chord
+        chord, length, segment = chord_points(
+            float(start[0]), float(start[1]), float(target[0]), float(target[1])
+        )
         cv2.line(
             branch.consumed,
             fixed_point((float(start[0]) + pad, float(start[1]) + pad)),
@@ -137,6 +136,8 @@ def advance(
             LINE_SHIFT,
         )
     else:
+        chord = target - start
+        length = float(np.hypot(chord[0], chord[1]))
         before = tangent_at_vertex(branch)
         before = chord if before is None else before
         segment = hermite(start, target, before / np.linalg.norm(before) * length, continuation * length)

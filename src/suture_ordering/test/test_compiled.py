@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from suture_ordering.compiled import circle_points, circle_runs, unvisited_out_of_zone
+from suture_ordering.compiled import chord_points, circle_points, circle_runs, unvisited_out_of_zone
 from suture_ordering.nodes import circle_samples
 
 
@@ -122,3 +122,17 @@ def test_circle_points_matches_numpy(seed: int) -> None:
         expected -= np.array((u0, v0), dtype=np.float32)
         np.testing.assert_array_equal(where, expected)
         assert where.dtype == np.float32
+
+
+def test_chord_points_match_numpy() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        start = rng.uniform(-50, 700, 2)
+        target = start + rng.normal(0, rng.choice([0.3, 3.0, 30.0]), 2)
+        chord, length, points = chord_points(start[0], start[1], target[0], target[1])
+        expected_chord = target - start
+        expected_length = float(np.hypot(*expected_chord))
+        n = max(1, math.ceil(expected_length))
+        np.testing.assert_array_equal(chord, expected_chord)
+        assert length == expected_length
+        np.testing.assert_array_equal(points, start + (np.arange(1, n + 1) / n)[:, None] * expected_chord)
