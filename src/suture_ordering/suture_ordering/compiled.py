@@ -107,9 +107,10 @@ def circle_runs(
 
 
 @numba.njit(cache=True, nogil=True)
-def unvisited_out_of_zone(
+def admissible_nodes(
     position: np.ndarray,
     delta: np.ndarray,
+    width: np.ndarray,
     tau_v: float,
     consumed_flat: np.ndarray,
     zone_flat: np.ndarray,
@@ -118,17 +119,18 @@ def unvisited_out_of_zone(
     vertex_u: float,
     vertex_v: float,
     r: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Which nodes on the circle of radius ``r`` around the vertex may be stepped to, and O.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The nodes on the circle of radius ``r`` around the vertex that may be stepped to, and O.
 
     ``position``: (k, 2) float64 (u, v) nodes; ``delta``: (k,) float64 their turns (rad);
-    ``consumed_flat`` and ``zone_flat``: the branch's traversed-path raster and the zone, flat
-    uint8 arrays of the padded mask (rows ``padded_width`` long, the image offset by ``pad``).
+    ``width``: (k,) float32 their cross-sections (px); ``consumed_flat`` and ``zone_flat``: the
+    branch's traversed-path raster and the zone, flat uint8 arrays of the padded mask (rows
+    ``padded_width`` long, the image offset by ``pad``).
 
-    Returns ``keep`` (k,) bool: the node's pixel (its rounded position) lies off the path and
-    ``delta < tau_v``; and ``out`` (k,) int64: for the kept nodes, O, the samples of the chord
-    vertex -> node at fractions 1/r .. (r-1)/r that round onto a pixel outside the zone (0 for
-    the others, and for r < 2).
+    A node is kept when its pixel (its rounded position) lies off the path and ``delta < tau_v``.
+    Returns the kept nodes' ``position``, ``delta`` and ``width``, their O (int64: the samples of
+    the chord vertex -> node at fractions 1/r .. (r-1)/r that round onto a pixel outside the
+    zone; 0 for r < 2), their distance ``r`` (float64) and whether O > 0 (a bridged gap).
     """
     k = position.shape[0]
     keep = np.empty(k, dtype=np.bool_)
@@ -137,10 +139,14 @@ def unvisited_out_of_zone(
     # + 0.5 then truncation: rounding (coordinates in the padded arrays are positive)
     shift_u = (vertex_u + pad) + 0.5
     shift_v = (vertex_v + pad) + 0.5
+    kept = 0
     for j in range(k):
         flat = int(np.rint(position[j, 0])) + padded_width * int(np.rint(position[j, 1])) + offset
         keep[j] = consumed_flat[flat] == 0 and delta[j] < tau_v
-        if not keep[j] or r < 2:
+        if not keep[j]:
+            continue
+        kept += 1
+        if r < 2:
             continue
         du, dv = position[j, 0] - vertex_u, position[j, 1] - vertex_v
         count = 0
@@ -151,7 +157,20 @@ def unvisited_out_of_zone(
             if zone_flat[u + padded_width * v] == 0:
                 count += 1
         out[j] = count
-    return keep, out
+    kept_position = np.empty((kept, 2))
+    kept_delta = np.empty(kept)
+    kept_width = np.empty(kept, dtype=width.dtype)
+    kept_out = np.empty(kept, dtype=np.int64)
+    radius = np.full(kept, float(r))
+    bridge = np.empty(kept, dtype=np.bool_)
+    m = 0
+    for j in range(k):
+        if keep[j]:
+            kept_position[m, 0], kept_position[m, 1] = position[j, 0], position[j, 1]
+            kept_delta[m], kept_width[m], kept_out[m] = delta[j], width[j], out[j]
+            bridge[m] = out[j] > 0
+            m += 1
+    return kept_position, kept_delta, kept_width, kept_out, radius, bridge
 
 
 @numba.njit(cache=True, nogil=True)
@@ -202,7 +221,19 @@ def warm_up() -> None:
     circle_points(np.zeros((8, 1, 2), dtype=np.float32), 0.0, 0.0, 2, 1)
     chord_points(0.0, 0.0, 1.0, 1.0)
     raster = np.zeros(25, dtype=np.uint8)
-    unvisited_out_of_zone(np.full((1, 2), 2.0), np.zeros(1), 1.0, raster, raster, 5, 0, 0.0, 0.0, 2)
+    admissible_nodes(
+        np.full((1, 2), 2.0),
+        np.zeros(1),
+        np.ones(1, dtype=np.float32),
+        1.0,
+        raster,
+        raster,
+        5,
+        0,
+        0.0,
+        0.0,
+        2,
+    )
 
 
 warm_up()

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from suture_ordering.bridging import gap_exit
-from suture_ordering.compiled import unvisited_out_of_zone
+from suture_ordering.compiled import admissible_nodes
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import turn_angles
 from suture_ordering.junctions import STOP, decided_across_junction, junction_step
@@ -48,9 +48,10 @@ def admissible(
     else:  # |position - vertex| = r for nodes on the circle around the vertex
         cos = (position - vertex).dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
         delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
-    keep, out = unvisited_out_of_zone(
+    position, delta, widths, out, radius, bridge = admissible_nodes(
         position,
         delta,
+        nodes.width,
         params.tau_v,
         consumed_flat,
         reader.zone_flat,
@@ -60,25 +61,11 @@ def admissible(
         float(vertex[1]),
         nodes.radius,
     )
-    kept = np.count_nonzero(keep)
-    if kept < len(keep):
-        if not kept:
-            return None
-        position, delta, out = position[keep], delta[keep], out[keep]
-        widths = nodes.width[keep]
-    else:
-        widths = nodes.width
+    if not len(position):
+        return None
     continuation: list[np.ndarray | None] = [None] * len(position)
-    if not np.count_nonzero(out):
-        return Candidates(
-            position,
-            np.full(len(position), float(nodes.radius)),
-            out,
-            delta,
-            widths,
-            continuation,
-            out > 0,
-        )
+    if not np.count_nonzero(bridge):
+        return Candidates(position, radius, out, delta, widths, continuation, bridge)
     keep = out < context.scaled.tau_o
     for j in np.flatnonzero(out > 0):  # bridged gaps: few, checked one by one
         if not keep[j] or delta[j] >= params.bridge_turn_max:
@@ -92,7 +79,7 @@ def admissible(
         return None
     return Candidates(
         position[keep],
-        np.full(int(keep.sum()), float(nodes.radius)),
+        radius[keep],
         out[keep],
         delta[keep],
         widths[keep],

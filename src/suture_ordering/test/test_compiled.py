@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from suture_ordering.compiled import chord_points, circle_points, circle_runs, unvisited_out_of_zone
+from suture_ordering.compiled import admissible_nodes, chord_points, circle_points, circle_runs
 from suture_ordering.nodes import circle_samples
 
 
@@ -72,7 +72,7 @@ def test_circle_runs_matches_numpy(seed: int) -> None:
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_unvisited_out_of_zone_matches_numpy(seed: int) -> None:
+def test_admissible_nodes_match_numpy(seed: int) -> None:
     rng = np.random.default_rng(seed)
     pad, height, width = 12, 40, 50
     zone = (rng.random((height + 2 * pad, width + 2 * pad)) < 0.6).astype(np.uint8)
@@ -83,12 +83,14 @@ def test_unvisited_out_of_zone_matches_numpy(seed: int) -> None:
     angle = rng.uniform(0, 2 * math.pi, int(rng.integers(1, 7)))
     position = vertex + r * np.column_stack((np.cos(angle), np.sin(angle)))
     delta = rng.uniform(0, math.pi, len(angle))
-    keep, out = unvisited_out_of_zone(
+    widths = rng.uniform(1, 5, len(angle)).astype(np.float32)
+    found = admissible_nodes(
         position,
         delta,
+        widths,
         2.0,
-        consumed.reshape(-1),
-        zone.reshape(-1),
+        consumed.ravel(),
+        zone.ravel(),
         padded_width,
         pad,
         vertex[0],
@@ -97,15 +99,17 @@ def test_unvisited_out_of_zone_matches_numpy(seed: int) -> None:
     )
     weights = np.array([1, padded_width])
     flat = np.rint(position).astype(np.intp).dot(weights) + pad * (1 + padded_width)
-    np.testing.assert_array_equal(keep, (consumed.reshape(-1)[flat] == 0) & (delta < 2.0))
+    keep = (consumed.ravel()[flat] == 0) & (delta < 2.0)
     if r < 2:
-        np.testing.assert_array_equal(out, 0)
-        return
-    samples = (np.arange(1, r) / r)[None, :, None] * (position - vertex)[:, None, :]
-    samples += vertex + pad + 0.5
-    expected = (zone.reshape(-1)[samples.astype(np.intp).dot(weights)] == 0).sum(axis=1)
-    np.testing.assert_array_equal(out[keep], expected[keep])
-    np.testing.assert_array_equal(out[~keep], 0)
+        out = np.zeros(int(keep.sum()), dtype=np.int64)
+    else:
+        samples = (np.arange(1, r) / r)[None, :, None] * (position[keep] - vertex)[:, None, :]
+        samples += vertex + pad + 0.5
+        out = (zone.ravel()[samples.astype(np.intp).dot(weights)] == 0).sum(axis=1)
+    expected = (position[keep], delta[keep], widths[keep], out, np.full(len(out), float(r)), out > 0)
+    for got, want in zip(found, expected, strict=True):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.parametrize("seed", range(10))
