@@ -161,7 +161,8 @@ class MaskReader:
         The mask is sampled bilinearly ~1 px apart along the circle; each run of samples
         above 0.5 is a cross-section of a thread and gives a node at its weighted centre.
         With the thread's ``width`` known, a run wider than ``wide_arc_factor`` widths gives
-        one node per edge, half a width inside it.
+        one node per edge, half a width inside it. The sample points and the runs are computed by
+        kernels of :mod:`suture_ordering.compiled`; the samples by cv2.remap.
         """
         circle = _circle(r)
         where, u0, v0 = circle_points(circle.offsets, float(vertex[0]), float(vertex[1]), self.pad, r)

@@ -39,7 +39,10 @@ def admissible(
     heading: np.ndarray | None,
     consumed_flat: np.ndarray,
 ) -> Candidates | None:
-    """The admissible nodes among ``nodes``: not detected, δ < τ_V, O < τ_O (and bridge checks)."""
+    """The admissible nodes among ``nodes``: not detected, δ < τ_V, O < τ_O (and bridge checks).
+
+    δ is computed here; which nodes are undetected and turn less than τ_V, and their O, by
+    :func:`suture_ordering.compiled.admissible_nodes`."""
     reader, params = context.reader, context.params
     vertex = branch.vertices[-1]
     position = nodes.position
