@@ -93,14 +93,16 @@ def clean_binary(
     not empty), which is cleaned in place (pass a copy to keep it)."""
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is not None:
-        parents = hierarchy[0][:, 3]
-        for index, contour in enumerate(contours):
-            if parents[index] < 0:  # outer boundary of a component
+        parents = hierarchy[0][:, 3].tolist()
+        # Each contour is drawn on its own (passing all of them to every call would convert
+        # them all each time: quadratic in the number of specks of a noisy mask).
+        for parent, contour in zip(parents, contours, strict=True):
+            if parent < 0:  # outer boundary of a component
                 _, _, w, h = cv2.boundingRect(contour)
                 if max(w, h) < scaled.min_blob_extent:
-                    cv2.drawContours(binary, contours, index, 0, thickness=cv2.FILLED)
+                    cv2.drawContours(binary, [contour], 0, 0, thickness=cv2.FILLED)
             elif cv2.contourArea(contour) <= scaled.max_hole_area:  # a small hole
-                cv2.drawContours(binary, contours, index, 1, thickness=cv2.FILLED)
+                cv2.drawContours(binary, [contour], 0, 1, thickness=cv2.FILLED)
     if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError(
             f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view
