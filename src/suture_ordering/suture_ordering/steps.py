@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from suture_ordering.bridging import gap_exit
@@ -100,9 +101,11 @@ def farther_radii(
     pad = reader.pad
     cu, cv = round(float(vertex[0])) + pad, round(float(vertex[1])) + pad
     window = (slice(cv - reach - 1, cv + reach + 2), slice(cu - reach - 1, cu + reach + 2))
-    rows, cols = np.nonzero(reader.mask[window] > branch.consumed[window])
-    if rows.size == 0:
+    # The undetected mask pixels (both rasters 0/1), listed row by row as np.nonzero would.
+    undetected = cv2.findNonZero(cv2.subtract(reader.mask[window], branch.consumed[window]))
+    if undetected is None:
         return []
+    cols, rows = undetected.reshape(-1, 2).T
     offset = np.column_stack((cols + (cu - reach - 1 - pad), rows + (cv - reach - 1 - pad))) - vertex
     distance = np.sqrt((offset * offset).sum(axis=1))
     near = (distance > scaled.step_radius) & (distance < reach + 1)
