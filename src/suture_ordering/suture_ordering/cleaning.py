@@ -83,16 +83,26 @@ def clean_mask(
     binary = as_binary_mask(mask, view)
     if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
         binary = binary.copy()
+    return clean_binary(binary, scaled, zone_margin, pad, view)
+
+
+def clean_binary(
+    binary: np.ndarray, scaled: ScaledParams, zone_margin: int, pad: int, view: str | None = None
+) -> CleanMask:
+    """:func:`clean_mask` of a mask already checked by :func:`as_binary_mask` ((H, W) uint8 0/1,
+    not empty), which is cleaned in place (pass a copy to keep it)."""
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is not None:
-        parents = hierarchy[0][:, 3]
-        for index, contour in enumerate(contours):
-            if parents[index] < 0:  # outer boundary of a component
+        parents = hierarchy[0][:, 3].tolist()
+        # Each contour is drawn on its own (passing all of them to every call would convert
+        # them all each time: quadratic in the number of specks of a noisy mask).
+        for parent, contour in zip(parents, contours, strict=True):
+            if parent < 0:  # outer boundary of a component
                 _, _, w, h = cv2.boundingRect(contour)
                 if max(w, h) < scaled.min_blob_extent:
-                    cv2.drawContours(binary, contours, index, 0, thickness=cv2.FILLED)
+                    cv2.drawContours(binary, [contour], 0, 0, thickness=cv2.FILLED)
             elif cv2.contourArea(contour) <= scaled.max_hole_area:  # a small hole
-                cv2.drawContours(binary, contours, index, 1, thickness=cv2.FILLED)
+                cv2.drawContours(binary, [contour], 0, 1, thickness=cv2.FILLED)
     if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError(
             f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view
@@ -102,7 +112,7 @@ def clean_mask(
     inner = (slice(pad, pad + height), slice(pad, pad + width))
     padded = np.zeros((height + 2 * pad, width + 2 * pad), dtype=np.uint8)
     padded[inner] = binary
-    zone = np.zeros_like(padded)
+    zone = np.zeros(padded.shape, dtype=np.uint8)  # calloc'd, unlike np.zeros_like
     if zone_margin > 0:
         size = 2 * zone_margin + 1
         cv2.dilate(binary, cv2.getStructuringElement(cv2.MORPH_RECT, (size, size)), dst=zone[inner])

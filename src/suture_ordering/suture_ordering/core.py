@@ -16,13 +16,14 @@ into a hook or hairpin starts with a walk through the hook (:mod:`suture_orderin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from suture_common.camera import StereoCamera
-from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_mask
+from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
 from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError
 from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence
@@ -106,6 +107,12 @@ class _Prepared:
     searcher: Searcher
 
 
+@functools.lru_cache(maxsize=32)
+def _scaled_params(params: OrderingParams, width: int) -> ScaledParams:
+    """The parameters in pixels for masks ``width`` px wide, computed once per (params, width)."""
+    return ScaledParams.from_params(params, width)
+
+
 def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Prepared:
     binary = as_binary_mask(mask, view)
     fraction = np.count_nonzero(binary) / binary.size
@@ -116,9 +123,11 @@ def _prepare(mask: np.ndarray, params: OrderingParams, view: str | None) -> _Pre
             "or encoding?)",
             view,
         )
-    scaled = ScaledParams.from_params(params, binary.shape[1])
+    scaled = _scaled_params(params, binary.shape[1])
     pad = scaled.max_reach + scaled.step_radius + 3
-    clean = clean_mask(binary, scaled, int(params.zone_margin_px), pad, view)
+    if np.may_share_memory(binary, mask):  # a bool mask's view: cleaned in a copy
+        binary = binary.copy()
+    clean = clean_binary(binary, scaled, int(params.zone_margin_px), pad, view)
     return _Prepared(clean, scaled, Searcher(clean, params, scaled))
 
 

@@ -60,7 +60,8 @@ def hermite(start: np.ndarray, end: np.ndarray, tangent0: np.ndarray, tangent1: 
     )
 
 
-def fixed_point(point: np.ndarray) -> tuple[int, int]:
-    """(2,) ``point`` in cv2's fixed-point coordinates (:data:`LINE_SHIFT` fractional bits)."""
+def fixed_point(point: np.ndarray | tuple[float, float]) -> tuple[int, int]:
+    """(2,) ``point`` (an array or two floats) in cv2's fixed-point coordinates (:data:`LINE_SHIFT`
+    fractional bits)."""
     scale = 1 << LINE_SHIFT  # a power of two: the products are exact; round() is round-half-even
     return round(float(point[0]) * scale), round(float(point[1]) * scale)

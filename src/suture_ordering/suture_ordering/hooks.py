@@ -64,7 +64,7 @@ from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
 from suture_ordering.params import ScaledParams
-from suture_ordering.path import Branch, advance
+from suture_ordering.path import Branch, advance, advance_along
 from suture_ordering.tip import extend_to_end, free_ends
 
 #: At most this many branches in a hook's graph (more: not a hook; the walk is not searched).
@@ -594,9 +594,12 @@ def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
     step = float(context.scaled.step_radius)
     last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
-    for point in points[1:last_steps]:
-        if math.hypot(*(point - branch.vertices[-1])) >= DENSE:
-            advance(context, branch, point, start.width)
+    chosen, (last_u, last_v) = [], branch.vertices[-1].tolist()
+    for k, (u, v) in enumerate(points[1:last_steps].tolist()):
+        if math.hypot(u - last_u, v - last_v) >= DENSE:
+            chosen.append(k + 1)
+            last_u, last_v = u, v
+    advance_along(context, branch, points[chosen], start.width)
     for mark in (along[-1] - step, along[-1]):
         point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
         if math.hypot(*(point - branch.vertices[-1])) >= 1.0:
@@ -614,12 +617,8 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     window = np.ascontiguousarray(
         mask[v0 : min(height, cv + r + 1), u0 : min(width, cu + r + 1)], dtype=np.uint8
     )
-    _, pieces = cv2.connectedComponents(window, connectivity=8)
-    on = np.argwhere(window > 0)
-    if on.size == 0:
+    if not cv2.countNonZero(window):
         return False
-    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
-    thread = pieces == pieces[nearest[0], nearest[1]]
     # The path visits the thread's whole cross-section: its half width plus the detection radius.
     polyline = np.rint(points - np.array([u0, v0])).astype(np.int32)
     on_window = (
@@ -628,10 +627,40 @@ def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scal
     depth = cv2.distanceTransform(window, cv2.DIST_L2, 3)
     half = float(np.median(depth[polyline[on_window, 1], polyline[on_window, 0]])) if on_window.any() else 1.0
     visited = np.zeros_like(window)
-    cv2.polylines(visited, [polyline], False, 1, 2 * max(1, round(half + scaled.detect_radius)) + 1)
+    thickness = 2 * max(1, round(half + scaled.detect_radius)) + 1
+    cv2.polylines(visited, _pieces_near(polyline, window.shape, thickness), False, 1, thickness)
     inside = np.zeros_like(window)
     cv2.circle(inside, (cu - u0, cv - v0), r - scaled.step_radius, 1, cv2.FILLED)
-    return int((thread & (visited == 0) & (inside > 0)).sum()) > SKIPPED * scaled.scale
+    unvisited = (window > 0) & (visited == 0) & (inside > 0)
+    if np.count_nonzero(unvisited) <= SKIPPED * scaled.scale:
+        return False  # too few unvisited pixels of any thread in the window
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    on = np.argwhere(window > 0)
+    nearest = on[np.argmin(np.hypot(on[:, 1] + u0 - tip[0], on[:, 0] + v0 - tip[1]))]
+    thread = pieces == pieces[nearest[0], nearest[1]]
+    return int((thread & unvisited).sum()) > SKIPPED * scaled.scale
+
+
+def _pieces_near(polyline: np.ndarray, shape: tuple[int, int], thickness: int) -> list[np.ndarray]:
+    """The stretches of ``polyline`` ((N, 2) int32 (u, v)) whose segments come within
+    ``thickness`` px of an image of ``shape`` (H, W): drawn with that thickness, they paint the
+    image's pixels that the whole polyline paints (each segment is drawn on its own, with
+    round caps), and the other segments none."""
+    if len(polyline) < 2:
+        return [polyline]
+    low = np.minimum(polyline[:-1], polyline[1:])
+    high = np.maximum(polyline[:-1], polyline[1:])
+    near = (
+        (high >= -thickness).all(axis=1)
+        & (low[:, 0] < shape[1] + thickness)
+        & (low[:, 1] < shape[0] + thickness)
+    )
+    segments = np.flatnonzero(near)
+    if not len(segments):
+        return []
+    starts = np.flatnonzero(np.diff(segments, prepend=-2) > 1)
+    ends = np.append(starts[1:], len(segments)) - 1
+    return [polyline[segments[a] : segments[b] + 2] for a, b in zip(starts, ends, strict=True)]
 
 
 def hook_after_search(
@@ -664,9 +693,11 @@ def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams)
     if len(near) < 2:
         return False
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(near, axis=0).T))])
-    gaps = np.hypot(*(near[:, None, :] - near[None, :, :]).transpose(2, 0, 1))
-    apart = np.abs(along[:, None] - along[None, :]) > 2 * scaled.roi_radius
-    return bool(np.any(apart & (gaps < max(1.0, scaled.detect_radius))))
+    radius = max(1.0, scaled.detect_radius)
+    # Only the pairs of points close together (a k-d tree's, with a little slack) are measured.
+    i, j = cKDTree(near).query_pairs(radius * (1 + 1e-6) + 1e-6, output_type="ndarray").T
+    gaps = np.hypot(*(near[i] - near[j]).T)
+    return bool(np.any((np.abs(along[i] - along[j]) > 2 * scaled.roi_radius) & (gaps < radius)))
 
 
 def stereo_tip(

@@ -49,7 +49,7 @@ def at_junction(context: SearchContext, nodes: Candidates, width: float | None) 
     threads."""
     if width is None:
         return False
-    if (nodes.width > context.params.wide_arc_factor * width).any():
+    if np.count_nonzero(nodes.width > context.params.wide_arc_factor * width):
         return True
     if len(nodes.width) < 2:
         return False
@@ -62,7 +62,7 @@ def decided_across_junction(context: SearchContext, nodes: Candidates, width: fl
     junction on the nearest circle (:func:`at_junction`), or every near node turning by more
     than ``sharp_step_turn`` (a strand that leaves ours at a shallow angle may still run
     merged with it there, and the near node be that strand's)."""
-    return at_junction(context, nodes, width) or float(nodes.delta.min()) > context.params.sharp_step_turn
+    return at_junction(context, nodes, width) or min(nodes.delta.tolist()) > context.params.sharp_step_turn
 
 
 def junction_tangent(branch: Branch, radius: float) -> np.ndarray | None:

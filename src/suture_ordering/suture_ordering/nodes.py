@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from suture_ordering.cleaning import CleanMask
+from suture_ordering.compiled import circle_points, circle_runs
 
 #: Share of a smooth (Hermite) step that may leave the zone.
 MAX_OUTSIDE_ZONE = 0.1
@@ -51,12 +52,10 @@ def circle_samples(r: int) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class _Circle:
     """What :meth:`MaskReader.nodes` needs of the circle of radius r, computed once per radius:
-    the samples of :func:`circle_samples`, their number n, the arc between two samples (px)
-    and the angle between two samples (rad)."""
+    the sample offsets of :func:`circle_samples`, the arc between two samples (px) and the
+    angle between two samples (rad)."""
 
     offsets: np.ndarray
-    index: np.ndarray
-    n: int
     spacing: float
     angle_step: float
 
@@ -65,7 +64,7 @@ class _Circle:
 def _circle(r: int) -> _Circle:
     offsets, index = circle_samples(r)
     n = len(index)
-    return _Circle(offsets, index, n, 2 * math.pi * r / n, 2 * math.pi / n)
+    return _Circle(offsets, 2 * math.pi * r / n, 2 * math.pi / n)
 
 
 @functools.lru_cache(maxsize=256)
@@ -162,52 +161,31 @@ class MaskReader:
         The mask is sampled bilinearly ~1 px apart along the circle; each run of samples
         above 0.5 is a cross-section of a thread and gives a node at its weighted centre.
         With the thread's ``width`` known, a run wider than ``wide_arc_factor`` widths gives
-        one node per edge, half a width inside it.
+        one node per edge, half a width inside it. The sample points and the runs are computed by
+        kernels of :mod:`suture_ordering.compiled`; the samples by cv2.remap.
         """
         circle = _circle(r)
-        n = circle.n
-        centre = (vertex + self.pad).astype(np.float32)
-        values = self._bilinear(circle.offsets + centre, centre, r)
-        k0 = int(values.argmin())
-        if values[k0] > 0.5:
-            return None  # the circle lies wholly inside the mask: no thread structure
-        # Read from the emptiest sample on, so that no run wraps round the end.
-        rolled = np.concatenate((values[k0:], values[:k0]))
-        inside = rolled > 0.5
-        edges = (inside[1:] != inside[:-1]).nonzero()[0].tolist()
-        if not edges:
-            return None
-        if inside[-1]:  # a run still open at the end closes on the last sample
-            edges.append(n - 2)
-        weight = rolled.cumsum()
-        moment = (rolled * circle.index).cumsum()
-        # Each run (a few per circle) on numpy scalars: float32 where the arrays are float32.
-        centres: list[float] = []
-        widths: list[np.float32] = []
-        split: list[tuple[float, np.float32, np.float32]] = []
-        for start, end in zip(edges[0::2], edges[1::2], strict=True):
-            lo, hi = start, end + 1  # with the partial edge samples
-            first = rolled[lo]
-            mass = weight[hi] - weight[lo] + first
-            middle = (float(moment[hi]) - float(moment[lo]) + float(first) * lo) / float(mass) + k0
-            arc = mass * circle.spacing
-            if width is not None and arc > self.wide_arc_factor * width:
-                split.append((middle, arc, (mass - width / circle.spacing) / 2))
-            else:
-                centres.append(middle)
-                widths.append(arc)
-        if split:  # one node per edge, half a width inside it
-            centres += [middle - float(half) for middle, _, half in split]
-            centres += [middle + float(half) for middle, _, half in split]
-            widths += [arc for _, arc, _ in split] * 2
-        angle = np.array(centres) * circle.angle_step
+        where, u0, v0 = circle_points(circle.offsets, float(vertex[0]), float(vertex[1]), self.pad, r)
+        if self._window_fits(u0, v0, r):
+            values = self._remap_window(where, u0, v0, r)
+        else:  # beyond the padding (the search stays within it)
+            centre = (vertex + self.pad).astype(np.float32)
+            values = self._bilinear(circle.offsets + centre, centre, r)
+        if width is None:
+            centres, widths = circle_runs(values, circle.spacing, math.inf, 0.0)
+        else:
+            centres, widths = circle_runs(
+                values, circle.spacing, self.wide_arc_factor * width, width / circle.spacing
+            )
+        if not len(centres):
+            return None  # no thread on the circle, or the circle lies wholly inside the mask
+        angle = centres * circle.angle_step
         position = np.empty((len(angle), 2))
         np.cos(angle, out=position[:, 0])
         np.sin(angle, out=position[:, 1])
         position *= r
         position += vertex
-        widths_array = np.array(widths, dtype=np.float32)
-        return Nodes(position, widths_array, r)
+        return Nodes(position, widths, r)
 
     def _bilinear(self, where: np.ndarray, centre: np.ndarray, reach: int) -> np.ndarray:
         """(n,) the mask sampled bilinearly (cv2.remap) at ``where``, (n, 1, 2) float32 points of
@@ -218,12 +196,22 @@ class MaskReader:
         it keep their fractions exactly and the samples are those of the whole mask.
         """
         u0, v0 = int(centre[0]) - reach - 2, int(centre[1]) - reach - 2
-        size = 2 * reach + 5
-        if u0 < 0 or v0 < 0 or u0 + size > self.padded_width or v0 + size > self.padded_height:
+        if not self._window_fits(u0, v0, reach):
             # Beyond the padding (the search stays within it): cv2.remap's own border handling.
             return cv2.remap(self.mask.astype(np.float32), where, None, cv2.INTER_LINEAR).reshape(-1)
-        window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
         where -= np.array((u0, v0), dtype=np.float32)
+        return self._remap_window(where, u0, v0, reach)
+
+    def _window_fits(self, u0: int, v0: int, reach: int) -> bool:
+        """Whether the window of :meth:`_remap_window` at (u0, v0) lies within the padded arrays."""
+        size = 2 * reach + 5
+        return u0 >= 0 and v0 >= 0 and u0 + size <= self.padded_width and v0 + size <= self.padded_height
+
+    def _remap_window(self, where: np.ndarray, u0: int, v0: int, reach: int) -> np.ndarray:
+        """(n,) the mask sampled bilinearly at ``where`` ((n, 1, 2) float32 points relative to the
+        window's corner (u0, v0), within ``reach`` + 2 px of the window's centre)."""
+        size = 2 * reach + 5
+        window = self.mask[v0 : v0 + size, u0 : u0 + size].astype(np.float32)
         return cv2.remap(window, where, None, cv2.INTER_LINEAR).reshape(-1)
 
     def out_of_zone(self, start: np.ndarray, ends: np.ndarray, r: int) -> np.ndarray:

@@ -200,9 +200,13 @@ def _free_mask_near(
     u0, u1 = max(0, cu - r), min(width_px, cu + r + 1)
     v0, v1 = max(0, cv - r), min(height, cv + r + 1)
     consumed = branch.consumed[v0:v1, u0:u1]
-    mask = reader.mask[v0:v1, u0:u1] > 0
+    mask = reader.mask[v0:v1, u0:u1]
     origin = np.array([u0 - pad, v0 - pad], dtype=np.float64)
-    rows, cols = np.nonzero(mask & (consumed == 0))
+    # The undetected mask pixels (both rasters 0/1), listed row by row as np.nonzero would.
+    undetected = cv2.findNonZero(cv2.subtract(mask, consumed))
+    if undetected is None:
+        return None
+    cols, rows = undetected.reshape(-1, 2).T
     ahead = in_cone(np.column_stack((cols, rows)) + origin - end)
     if not ahead.any():
         return None  # the usual end of a thread: nothing ahead (no need to label the window)
@@ -213,7 +217,7 @@ def _free_mask_near(
     c0, c1 = max(0, cols[ahead].min() - margin), cols[ahead].max() + margin + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * clearance + 1, 2 * clearance + 1))
     near_path = cv2.dilate(consumed[r0:r1, c0:c1], kernel) > 0
-    free = (mask[r0:r1, c0:c1] & ~near_path).astype(np.uint8)
+    free = ((mask[r0:r1, c0:c1] > 0) & ~near_path).astype(np.uint8)
     count, labels = cv2.connectedComponents(free, connectivity=8)
     if count <= 1:
         return None

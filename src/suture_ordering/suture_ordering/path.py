@@ -23,12 +23,12 @@ Detected nodes.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
+from suture_ordering.compiled import chord_points
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import LINE_SHIFT, fixed_point, hermite, rotate, signed_angle
 
@@ -120,23 +120,24 @@ def advance(
 ) -> None:
     """Append the step V^t -> target to ``branch``: a chord, or a cubic Hermite curve ending
     along ``continuation`` (across a gap when ``bridge``, else across a junction)."""
-    params, scaled, pad = context.params, context.scaled, context.reader.pad
+    pad = context.reader.pad
     start = branch.vertices[-1]
-    chord = target - start
-    length = float(np.hypot(*chord))
     if continuation is None:
-        n = max(1, math.ceil(length))
-        segment = start + chord_steps(n) * chord
+        chord, length, segment = chord_points(
+            float(start[0]), float(start[1]), float(target[0]), float(target[1])
+        )
         cv2.line(
             branch.consumed,
-            fixed_point(start + pad),
-            fixed_point(target + pad),
+            fixed_point((float(start[0]) + pad, float(start[1]) + pad)),
+            fixed_point((float(target[0]) + pad, float(target[1]) + pad)),
             1,
             context.thickness,
             cv2.LINE_8,
             LINE_SHIFT,
         )
     else:
+        chord = target - start
+        length = float(np.hypot(chord[0], chord[1]))
         before = tangent_at_vertex(branch)
         before = chord if before is None else before
         segment = hermite(start, target, before / np.linalg.norm(before) * length, continuation * length)
@@ -144,6 +145,46 @@ def advance(
         cv2.polylines(branch.consumed, [pts], False, 1, context.thickness, cv2.LINE_8, LINE_SHIFT)
         if bridge:
             branch.bridges += 1
+    _record(context, branch, target, segment, chord, length, width, continuation, bridge)
+
+
+def advance_along(context: SearchContext, branch: Branch, targets: np.ndarray, width: float) -> None:
+    """:func:`advance` to each of ``targets`` ((m, 2) float64 (u, v)) in turn along chords, all
+    ``width`` px wide: the same steps, with the chords' points computed and the path drawn
+    (one polyline paints the pixels its segments' lines paint) for all of them at once."""
+    if not len(targets):
+        return
+    pad = context.reader.pad
+    starts = np.vstack((branch.vertices[-1], targets[:-1]))
+    chords = targets - starts
+    counts = np.maximum(1, np.ceil(np.hypot(chords[:, 0], chords[:, 1]))).astype(int)
+    segments: list[np.ndarray] = [np.empty(0)] * len(targets)
+    for n in np.unique(counts).tolist():
+        chosen = np.flatnonzero(counts == n)
+        points = starts[chosen][:, None, :] + chord_steps(n)[None, :, :] * chords[chosen][:, None, :]
+        for k, segment in zip(chosen.tolist(), points, strict=True):
+            segments[k] = segment
+    path = np.rint((np.vstack((starts[:1], targets)) + pad) * (1 << LINE_SHIFT)).astype(np.int32)
+    cv2.polylines(branch.consumed, [path], False, 1, context.thickness, cv2.LINE_8, LINE_SHIFT)
+    for target, segment, chord in zip(targets, segments, chords, strict=True):
+        _record(context, branch, target, segment, chord, 0.0, width, None, False)
+
+
+def _record(
+    context: SearchContext,
+    branch: Branch,
+    target: np.ndarray,
+    segment: np.ndarray,
+    chord: np.ndarray,
+    length: float,
+    width: float,
+    continuation: np.ndarray | None,
+    bridge: bool,
+) -> None:
+    """The bookkeeping of a step of :func:`advance` (drawn already): the segment and vertex, the
+    thread's width, track and turn, and the step counts. ``length``: the chord's length (px),
+    needed only with a ``continuation``."""
+    params, scaled = context.params, context.scaled
     branch.segments.append(segment)
     branch.segment_bridged.append(bridge)
     branch.vertices.append(target)

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from suture_ordering.bridging import gap_exit
+from suture_ordering.compiled import admissible_nodes
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import turn_angles
 from suture_ordering.junctions import STOP, decided_across_junction, junction_step
@@ -38,7 +40,10 @@ def admissible(
     heading: np.ndarray | None,
     consumed_flat: np.ndarray,
 ) -> Candidates | None:
-    """The admissible nodes among ``nodes``: not detected, δ < τ_V, O < τ_O (and bridge checks)."""
+    """The admissible nodes among ``nodes``: not detected, δ < τ_V, O < τ_O (and bridge checks).
+
+    δ is computed here; which nodes are undetected and turn less than τ_V, and their O, by
+    :func:`suture_ordering.compiled.admissible_nodes`."""
     reader, params = context.reader, context.params
     vertex = branch.vertices[-1]
     position = nodes.position
@@ -47,26 +52,24 @@ def admissible(
     else:  # |position - vertex| = r for nodes on the circle around the vertex
         cos = (position - vertex).dot(heading) / (nodes.radius * math.hypot(heading[0], heading[1]))
         delta = np.arccos(np.minimum(np.maximum(cos, -1.0, out=cos), 1.0, out=cos), out=cos)
-    keep = (consumed_flat[reader.flat(position)] == 0) & (delta < params.tau_v)
-    if not keep.all():
-        if not keep.any():
-            return None
-        position, delta = position[keep], delta[keep]
-        widths = nodes.width[keep]
-    else:
-        widths = nodes.width
-    out = reader.out_of_zone(vertex, position, nodes.radius)
+    position, delta, widths, out, radius, bridge = admissible_nodes(
+        position,
+        delta,
+        nodes.width,
+        params.tau_v,
+        consumed_flat,
+        reader.zone_flat,
+        reader.padded_width,
+        reader.pad,
+        float(vertex[0]),
+        float(vertex[1]),
+        nodes.radius,
+    )
+    if not len(position):
+        return None
     continuation: list[np.ndarray | None] = [None] * len(position)
-    if not out.any():
-        return Candidates(
-            position,
-            np.full(len(position), float(nodes.radius)),
-            out,
-            delta,
-            widths,
-            continuation,
-            out > 0,
-        )
+    if not np.count_nonzero(bridge):
+        return Candidates(position, radius, out, delta, widths, continuation, bridge)
     keep = out < context.scaled.tau_o
     for j in np.flatnonzero(out > 0):  # bridged gaps: few, checked one by one
         if not keep[j] or delta[j] >= params.bridge_turn_max:
@@ -80,7 +83,7 @@ def admissible(
         return None
     return Candidates(
         position[keep],
-        np.full(int(keep.sum()), float(nodes.radius)),
+        radius[keep],
         out[keep],
         delta[keep],
         widths[keep],
@@ -98,9 +101,11 @@ def farther_radii(
     pad = reader.pad
     cu, cv = round(float(vertex[0])) + pad, round(float(vertex[1])) + pad
     window = (slice(cv - reach - 1, cv + reach + 2), slice(cu - reach - 1, cu + reach + 2))
-    rows, cols = np.nonzero(reader.mask[window] > branch.consumed[window])
-    if rows.size == 0:
+    # The undetected mask pixels (both rasters 0/1), listed row by row as np.nonzero would.
+    undetected = cv2.findNonZero(cv2.subtract(reader.mask[window], branch.consumed[window]))
+    if undetected is None:
         return []
+    cols, rows = undetected.reshape(-1, 2).T
     offset = np.column_stack((cols + (cu - reach - 1 - pad), rows + (cv - reach - 1 - pad))) - vertex
     distance = np.sqrt((offset * offset).sum(axis=1))
     near = (distance > scaled.step_radius) & (distance < reach + 1)
@@ -140,7 +145,11 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
                 # Equidistant nodes inside the zone: every parameter set prefers the smallest
                 # turn, and no farther node can do better if even the largest ε3 keeps that
                 # cost below the cheapest node one pixel farther (no cost matrix needed).
-                turns = first.delta if not first.bridge.any() else np.where(first.bridge, np.inf, first.delta)
+                turns = (
+                    np.where(first.bridge, np.inf, first.delta)
+                    if np.count_nonzero(first.bridge)
+                    else first.delta
+                )
                 smallest = int(turns.argmin())
                 turn = float(turns[smallest])
                 if turn < math.inf and math.exp(tuning.eps3_max * math.sin(turn / 2)) <= (r_s + 1) / r_s:
