@@ -14,6 +14,7 @@ from suture_ordering.errors import (
     OrderingError,
     TipNotOnThreadError,
     TipOutsideImageError,
+    UnexplainedTipError,
 )
 from suture_ordering.params import OrderingParams
 
@@ -27,6 +28,7 @@ __all__ = [
     "StereoOrdering",
     "TipNotOnThreadError",
     "TipOutsideImageError",
+    "UnexplainedTipError",
     "order_sequence",
     "order_stereo",
 ]

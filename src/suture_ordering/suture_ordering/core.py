@@ -31,6 +31,7 @@ from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
 from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
+from suture_ordering.tip_check import check_tip_explained
 
 
 @dataclass(frozen=True)
@@ -292,6 +293,24 @@ def order_stereo(
                 f"({camera.height}, {camera.width}) from camera_info",
                 view,
             )
+    ordering = _masks_or_low_masks(left_mask, right_mask, tip_hint, camera, params, low_masks)
+    radius = params.tip_unexplained_radius_px * params.scale_for(camera.width)
+    if radius > 0:
+        max_pixels = params.tip_unexplained_max_px * params.scale_for(camera.width) ** 2
+        explained = low_masks if low_masks is not None else (left_mask, right_mask)
+        check_tip_explained(explained, (ordering.left, ordering.right), radius, max_pixels)
+    return ordering
+
+
+def _masks_or_low_masks(
+    left_mask: np.ndarray,
+    right_mask: np.ndarray,
+    tip_hint: np.ndarray | None,
+    camera: StereoCamera,
+    params: OrderingParams,
+    low_masks: tuple[np.ndarray, np.ndarray] | None,
+) -> StereoOrdering:
+    """The ordering of the masks, or of the low masks where they reach farther (:func:`order_stereo`)."""
     try:
         ordering = _order_pair(left_mask, right_mask, tip_hint, camera, params)
     except InvalidInputError:

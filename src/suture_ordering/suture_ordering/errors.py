@@ -37,3 +37,8 @@ class TipNotOnThreadError(OrderingError):
 
 class NoFreeEndError(OrderingError):
     """The thread near the tip has no free end there (a closed ring, or a hint away from the cut end)."""
+
+
+class UnexplainedTipError(OrderingError):
+    """Thread near the cut tip lies off the ordered sequence (a hook or loop the search skipped):
+    the grasp point's arc from the tip would be too short."""

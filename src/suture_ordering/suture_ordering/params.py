@@ -197,6 +197,23 @@ class OrderingParams:
             "the cut tip is the free end nearest to the tip hint, at most this far from it (px)", (0.0, 640.0)
         ),
     )
+    tip_unexplained_radius_px: float = field(
+        default=16.0,
+        metadata=described(
+            "after ordering, the mask (low mask where given) within this radius of each view's cut tip "
+            "must lie on the sequence (suture_ordering.tip_check); 0: no check (px)",
+            (0.0, 640.0),
+        ),
+    )
+    tip_unexplained_max_px: float = field(
+        default=5.0,
+        metadata=described(
+            "the ordering refuses (UnexplainedTipError) when more than this many mask pixels within "
+            "tip_unexplained_radius_px of a cut tip lie off the sequence: a hook or loop the search "
+            "skipped (pixels at 640 px width, scaled with the width squared)",
+            (0.0, 409600.0),
+        ),
+    )
     max_hole_area_px: float = field(
         default=20.0,
         metadata=described(
@@ -326,6 +343,10 @@ class OrderingParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 <= value < 1):
                 raise ValueError(f"OrderingParams.{name} must be in [0, 1), got {value!r}")
+        for name in ("tip_unexplained_radius_px", "tip_unexplained_max_px"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"OrderingParams.{name} must be >= 0, got {value!r}")
         if self.max_hole_area_px < 0:
             raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
         if int(self.max_steps) != self.max_steps or self.max_steps < 1:

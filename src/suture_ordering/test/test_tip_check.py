@@ -1,0 +1,69 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The check that the ordered sequences explain the thread at the cut tip."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from suture_common.camera import StereoCamera
+from suture_ordering import OrderingParams, UnexplainedTipError, order_stereo
+from suture_ordering.tip_check import check_tip_explained, unexplained_tip_pixels
+
+W, H = 640, 480
+
+
+def _line(a: tuple[float, float], b: tuple[float, float]) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, max(2, int(np.hypot(b[0] - a[0], b[1] - a[1]))))[:, None]
+    return np.asarray(a, float) + t * (np.asarray(b, float) - np.asarray(a, float))
+
+
+def _draw(curves: list[np.ndarray], width: int = 3) -> np.ndarray:
+    mask = np.zeros((H, W), np.uint8)
+    for curve in curves:
+        cv2.polylines(mask, [np.rint(curve).astype(np.int32)], False, 255, width)
+    return mask
+
+
+def _loop_fragment(centre: tuple[float, float], radius: float, start: float, stop: float) -> np.ndarray:
+    """An arc of a circle: the far side of a small loop at the tip that the segmenter kept apart."""
+    angle = np.linspace(start, stop, 40)
+    return np.column_stack([centre[0] + radius * np.cos(angle), centre[1] + radius * np.sin(angle)])
+
+
+def test_a_plain_thread_is_explained_by_its_own_sequence():
+    thread = _line((150, 120), (520, 330))
+    assert unexplained_tip_pixels(_draw([thread]), thread, 16.0) == 0
+
+
+def test_a_loop_at_the_tip_that_the_sequence_skips_is_not_explained():
+    thread = _line((150, 120), (520, 330))
+    loop = _loop_fragment((139.0, 124.0), 6.0, 0.5 * np.pi, 1.5 * np.pi)  # behind the tip, apart
+    mask = _draw([thread, loop], width=1)
+    assert unexplained_tip_pixels(mask, thread, 16.0) > 5
+    with pytest.raises(UnexplainedTipError, match="right view: .* px of thread within 16 px of the cut tip"):
+        check_tip_explained((_draw([thread], width=1), mask), (thread, thread), 16.0, 5.0)
+    # Farther from the tip than the radius, the same fragment does not count.
+    far = _loop_fragment((300.0, 250.0), 6.0, 0.5 * np.pi, 1.5 * np.pi)
+    assert unexplained_tip_pixels(_draw([thread, far], width=1), thread, 16.0) == 0
+
+
+def _shifted(mask: np.ndarray, disparity: int) -> np.ndarray:
+    right = np.zeros_like(mask)
+    right[:, : W - disparity] = mask[:, disparity:]
+    return right
+
+
+def test_order_stereo_refuses_a_tip_whose_loop_it_skipped():
+    camera = StereoCamera.default(W, H)
+    thread = _line((150, 120), (520, 330))
+    left = _draw([thread, _loop_fragment((139.0, 124.0), 6.0, 0.5 * np.pi, 1.5 * np.pi)])
+    with pytest.raises(UnexplainedTipError, match="left view"):
+        order_stereo(left, _shifted(left, 30), thread[0], camera)
+    ordering = order_stereo(
+        left, _shifted(left, 30), thread[0], camera, OrderingParams(tip_unexplained_radius_px=0.0)
+    )
+    assert np.hypot(*(ordering.left[0] - thread[0])) <= 3.0
+    with pytest.raises(ValueError, match="tip_unexplained_max_px"):
+        OrderingParams(tip_unexplained_max_px=-1.0)
