@@ -3,7 +3,7 @@
 
 For a surgical robot a refusal is cheap and a wrong grasp is not. :func:`assess_grasp`
 estimates the uncertainty of the grasp point from what the stereo pair says about the
-thread between the cut tip and the grasp point, three terms added in quadrature:
+thread between the cut tip and the grasp point, four terms added in quadrature:
 
 * **conditioning**: rectified stereo measures depth across the image rows only. Where the
   thread runs at an angle a to the rows, a row error of the sequences becomes a disparity
@@ -20,6 +20,12 @@ thread between the cut tip and the grasp point, three terms added in quadrature:
   sequence. Its largest distance from it (px) between the tip and just past the grasp point,
   over the stretches seen in both views, means the views were paired wrongly or describe
   different threads there; each pixel is taken as a pixel of disparity (``Z^2 / (f B)`` mm).
+
+* **unsupported depth**: along a stretch within :data:`UNSUPPORTED_ROW_DEG` of the rows the
+  pair measures no depth; the reconstruction carries it there from the stretches on either
+  side. A large depth change across such stretches between the tip and the grasp point rests on
+  no measurement, and a wrong one lengthens or shortens the arc to the grasp point by up to as
+  much: the term is the sum of ``|dZ|`` (mm) over those stretches.
 
 A point of the 3D path is seen in a view when the nearest sample of that view's sequence
 (resampled every 1 px, a jump across a hidden stretch filled with unseen samples) is a seen one.
@@ -59,6 +65,8 @@ MIN_ROW_SINE = float(np.sin(np.radians(3.0)))
 #: Share of the arc not seen between the tip and the grasp point that may be missing from the
 #: reconstructed length (a straight guess across a gap is shorter than the thread under it).
 NOT_SEEN_ARC_FACTOR = 0.15
+#: Angle (deg) to the image rows below which a stretch's depth is not measured but carried.
+UNSUPPORTED_ROW_DEG = 5.0
 #: Arc (m) either side of the grasp point over which its conditioning and seen state are read.
 GRASP_WINDOW_M = 0.003
 #: Spacing (m) of the curve samples the assessment projects into the views.
@@ -69,12 +77,13 @@ SAMPLE_STEP_M = 0.0005
 class GraspUncertainty:
     """The grasp point's uncertainty (mm) and its parts.
 
-    ``total_mm``: the three terms in quadrature; ``conditioning_mm``, ``not_seen_mm``,
-    ``disagreement_mm``: the terms (module docstring). ``row_angle_deg``: the thread's angle
-    to the image rows at the grasp point (left view); ``not_seen_arc_mm``: arc between the tip
-    and the grasp point not seen in both views; ``residual_px``: the largest distance of the
-    projected path from a view's seen sequence (tip to just past the grasp point);
-    ``grasp_not_seen``: the views ('left', 'right') in which the grasp point is not seen.
+    ``total_mm``: the four terms in quadrature; ``conditioning_mm``, ``not_seen_mm``,
+    ``disagreement_mm``, ``unsupported_depth_mm``: the terms (module docstring).
+    ``row_angle_deg``: the thread's angle to the image rows at the grasp point (left view);
+    ``not_seen_arc_mm``: arc between the tip and the grasp point not seen in both views;
+    ``residual_px``: the largest distance of the projected path from a view's seen sequence
+    (tip to just past the grasp point); ``grasp_not_seen``: the views ('left', 'right') in which
+    the grasp point is not seen.
     """
 
     total_mm: float
@@ -85,6 +94,7 @@ class GraspUncertainty:
     not_seen_arc_mm: float
     residual_px: float
     grasp_not_seen: tuple[str, ...]
+    unsupported_depth_mm: float = 0.0
 
     def describe(self) -> str:
         """The terms in one line, for the refusal's message and the log."""
@@ -92,7 +102,7 @@ class GraspUncertainty:
             f"conditioning {self.conditioning_mm:.1f} mm (thread at {self.row_angle_deg:.1f} deg to the "
             f"image rows), not seen {self.not_seen_mm:.1f} mm ({self.not_seen_arc_mm:.1f} mm of arc before "
             f"the grasp point not seen in both views), views disagree {self.disagreement_mm:.1f} mm "
-            f"({self.residual_px:.1f} px)"
+            f"({self.residual_px:.1f} px), depth change along the rows {self.unsupported_depth_mm:.1f} mm"
         )
 
 
@@ -175,12 +185,13 @@ def assess_grasp(
     depth_per_px_mm = 1000 * points[at_grasp, 2] ** 2 / (camera.fx * camera.baseline)
     conditioning = depth_per_px_mm * ROW_NOISE_PX / max(sine, MIN_ROW_SINE)
     before = s <= grasp_arc_length
+    unsupported = _unsupported_depth_mm(points[before], row_sine[before])
     not_seen_arc_mm = 1000 * SAMPLE_STEP_M * float((~seen_both[before]).sum())
     not_seen = NOT_SEEN_ARC_FACTOR * not_seen_arc_mm
     residual_px = float(residual[seen_both].max()) if seen_both.any() else 0.0
     disagreement = depth_per_px_mm * residual_px
     uncertainty = GraspUncertainty(
-        total_mm=float(np.sqrt(conditioning**2 + not_seen**2 + disagreement**2)),
+        total_mm=float(np.sqrt(conditioning**2 + not_seen**2 + disagreement**2 + unsupported**2)),
         conditioning_mm=float(conditioning),
         not_seen_mm=float(not_seen),
         disagreement_mm=float(disagreement),
@@ -188,8 +199,20 @@ def assess_grasp(
         not_seen_arc_mm=not_seen_arc_mm,
         residual_px=residual_px,
         grasp_not_seen=grasp_not_seen,
+        unsupported_depth_mm=unsupported,
     )
     return uncertainty, path_not_seen
+
+
+def _unsupported_depth_mm(points: np.ndarray, row_sine: np.ndarray) -> float:
+    """Sum of the depth changes (mm) between consecutive ``points`` (K, 3) m, over the steps
+    where either end runs within :data:`UNSUPPORTED_ROW_DEG` of the image rows (``row_sine``
+    (K,): the sine of the left projection's angle to the rows)."""
+    if len(points) < 2:
+        return 0.0
+    along_rows = row_sine < np.sin(np.radians(UNSUPPORTED_ROW_DEG))
+    steps = along_rows[:-1] | along_rows[1:]
+    return float(1000 * np.abs(np.diff(points[:, 2]))[steps].sum())
 
 
 def refuse_uncertain_grasp(
@@ -214,6 +237,8 @@ def refuse_uncertain_grasp(
             "not_seen_mm": "clear the view of the thread between the tip and the grasp point",
             "disagreement_mm": "the two views' sequences do not describe the same thread there: check the "
             "masks and sequences of both views",
+            "unsupported_depth_mm": "the thread's depth changes along a stretch parallel to the image rows, "
+            "where the pair does not measure it: turn the camera or the thread so that it crosses them",
         }
         largest = max(terms, key=lambda name: getattr(uncertainty, name))
         raise UncertainGraspError(

@@ -117,3 +117,35 @@ def test_a_gap_before_the_grasp_point_is_not_a_refusal(make_scene):
 def test_the_threshold_is_checked():
     with pytest.raises(ValueError, match="max_grasp_uncertainty_mm"):
         ReconstructionParams(max_grasp_uncertainty_mm=0.0)
+
+
+def test_a_depth_change_along_the_image_rows_counts_as_unsupported():
+    from suture_reconstruction.uncertainty import _unsupported_depth_mm
+
+    # 40 mm of thread, its depth rising by 12 mm: along the rows the pair measured none of it.
+    s = np.linspace(0.0, 0.04, 81)
+    points = np.column_stack([s, np.zeros_like(s), 0.1 + 0.3 * s])
+    along_rows = np.full(len(s), np.sin(np.radians(1.0)))
+    across_rows = np.full(len(s), np.sin(np.radians(40.0)))
+    assert _unsupported_depth_mm(points, along_rows) == pytest.approx(12.0)
+    assert _unsupported_depth_mm(points, across_rows) == 0.0
+    half = along_rows.copy()
+    half[40:] = across_rows[40:]
+    assert _unsupported_depth_mm(points, half) == pytest.approx(6.0, abs=0.2)
+
+
+def test_an_unsupported_depth_change_before_the_grasp_point_refuses_it(make_scene):
+    steep = make_scene("curved", seed=3)
+    assert reconstruct(steep.left, steep.right, steep.camera).uncertainty.unsupported_depth_mm < 1.0
+    camera = StereoCamera.default(640, 480)
+    rng = np.random.default_rng(5)
+    curve = thread_at(1.0)
+    left, right = (sequence_of(camera, curve, view, rng) for view in ("left", "right"))
+    lenient = ReconstructionParams(max_grasp_uncertainty_mm=1e6)
+    assessed = reconstruct(left, right, camera, lenient).uncertainty
+    assert "depth change along the rows" in assessed.describe()
+    # The thread at 1 deg to the rows rises 5 mm in depth over its first 50 mm: none of it measured.
+    assert assessed.unsupported_depth_mm > 3.0
+    strict = ReconstructionParams(max_grasp_uncertainty_mm=0.9 * assessed.unsupported_depth_mm)
+    with pytest.raises(UncertainGraspError, match="depth changes along a stretch parallel"):
+        reconstruct(left, right, camera, strict)
