@@ -89,7 +89,11 @@ SKIPPED = 6.0
 #: Added to a walk's turns (rad) when it goes round a loop against the merged arms' sides.
 SIDE_PENALTY = math.pi
 #: Side offsets (px) below this tell nothing.
-LATERAL = 0.3
+LATERAL = 0.1
+#: The line the thread leaves merged arms along is fitted over this arc (in step radii) past
+#: their end.
+LEAVE_FROM = 0.5
+LEAVE_TO = 3.0
 #: Merged arms are moved apart where the thread leaves them at least this far (px) aside.
 SPLIT_SIDE = 0.5
 #: With a guide (the other view's walk), the walks that stray from it (:func:`_disagreement`)
@@ -314,18 +318,48 @@ def _offset(points: np.ndarray, centre: np.ndarray, axis: np.ndarray) -> float:
 
 
 def _stroke_side(
-    graph: _Graph, stroke: tuple[int, bool], after: list[tuple[int, bool]], reach: float, thread: cKDTree
+    graph: _Graph,
+    stroke: tuple[int, bool],
+    after: list[tuple[int, bool]],
+    reach: float,
+    thread: cKDTree,
+    to_mask: bool = True,
 ) -> tuple[float, np.ndarray, np.ndarray] | None:
     """The side of the merged stroke (the branch pass ``stroke``) that the thread leaves it by
-    (:func:`_loop_against_side`): the signed offset of the leaving line (the passes ``after``
-    the stroke's way back) from the stroke's pixels, and that line (a point, a unit
-    direction); None: the thread beyond is too short."""
+    (:func:`_loop_against_side`): the signed offset of the leaving line from the stroke's
+    pixels, and that line (a point, a unit direction); None: the thread beyond is too short.
+
+    The leaving line is fitted to the mask's pixels (``thread``) of the single thread beyond
+    the stroke (the passes ``after`` the stroke's way back), from ``LEAVE_FROM`` to
+    ``LEAVE_TO`` ``reach`` of arc past the stroke's end: not to its skeleton, which near the
+    stroke bends over from the stroke's centre to the thread's and runs a pixel aside where
+    the thread is one or two pixels wide; those offsets are the size of the side sought.
+    ``to_mask=False``: the line is fitted to the skeleton from 1 px to 2 ``reach`` past the
+    stroke's end (where merged arms are moved apart, :func:`_split_merged_arms`)."""
     pixels = _oriented(graph, *stroke)
-    leaving = _within(np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]]), 1.0, 2 * reach)
+    beyond = np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]])
+    if not to_mask:
+        leaving = _within(beyond, 1.0, 2 * reach)
+        if len(leaving) < 3:
+            return None
+        centre = leaving.mean(axis=0)
+        axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
+        near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
+        return -_offset(thread.data[near], centre, axis), centre, axis
+    leaving = _within(beyond, LEAVE_FROM * reach, LEAVE_TO * reach)
     if len(leaving) < 3:
         return None
-    centre = leaving.mean(axis=0)
-    axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
+    found = np.array(sorted({k for near in thread.query_ball_point(leaving, reach / 2) for k in near}))
+    if len(found) < 3:
+        return None
+    own = thread.data[found]
+    from_leaving = np.hypot(*(own[:, None, :] - leaving[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    from_stroke = np.hypot(*(own[:, None, :] - pixels[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+    own = own[from_leaving < from_stroke]  # not the stroke's pixels next to the thread's start
+    if len(own) < 3:
+        return None
+    centre = own.mean(axis=0)
+    axis = np.linalg.svd(own - centre, full_matrices=False)[2][0]
     near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
     return -_offset(thread.data[near], centre, axis), centre, axis
 
@@ -337,7 +371,7 @@ def _loop_against_side(
 
     Where the walk passes a branch (the merged arms, the tip's arm at its start), a loop, and
     the branch back, the thread leaves the merged stroke along its returning arm: the line of
-    the thread beyond the stroke (fitted over 2 ``reach`` px) runs along the stroke's side
+    the thread beyond the stroke (:func:`_stroke_side`) runs along the stroke's side
     that the returning arm lies on, half a thread's spacing from the stroke's pixels
     (``thread``: a tree of the mask's pixels (u, v) of the thread; the mean over its pixels
     near the branch, which a slit between the arms or a skeleton running along one arm does
@@ -392,7 +426,7 @@ def _split_merged_arms(
     background at the pixel) less the leaving thread's, which is half the arms' spacing."""
     pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
     for first, back in _merged_passes(graph, walk, reach):
-        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
+        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread, to_mask=False)
         if found is None or abs(found[0]) < SPLIT_SIDE:
             continue
         side, _, axis = found

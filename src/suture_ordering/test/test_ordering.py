@@ -577,16 +577,18 @@ def test_small_closed_loop_at_the_tip_is_gone_round_then_left_across_the_tip_arm
     assert np.hypot(*(result.points[-1] - truth[-1])) < 4
 
 
-def teardrop(side: float) -> np.ndarray:
-    """Tip at (300, 240); its arm runs 20 px, bends outward (radius 12 px), round a bend of
-    radius 6 px and back so that the returning arm lies 2.5 px beside the tip arm (drawn 2 px
-    wide, the arms merge into one stroke ending in a loop), and on 220 px. ``side``: +1 or -1,
-    which way it curls."""
-    bend, counter, gap = 6.0, 12.0, 2.5
+def teardrop(
+    side: float, gap: float = 2.5, heading: float = math.pi + 0.3, start: tuple[float, float] = (300.0, 240.0)
+) -> np.ndarray:
+    """Tip at ``start``; its arm runs 20 px along ``heading``, bends outward (radius 12 px),
+    round a bend of radius 6 px and back so that the returning arm lies ``gap`` px beside the
+    tip arm (drawn 2 px wide, the arms merge into one stroke ending in a loop), and on 220 px.
+    ``side``: +1 or -1, which way it curls."""
+    bend, counter = 6.0, 12.0
     alpha = math.acos((gap / 2 + counter) / (bend + counter))
     pieces = [(20.0, 0.0), (counter * alpha, -1 / counter), ((math.pi + 2 * alpha) * bend, 1 / bend)]
     pieces += [(counter * alpha, -1 / counter), (220.0, 0.0)]
-    return curve_from_curvature((300.0, 240.0), math.pi + 0.3, [(length, side * k) for length, k in pieces])
+    return curve_from_curvature(start, heading, [(length, side * k) for length, k in pieces])
 
 
 @pytest.mark.parametrize("side", [1.0, -1.0])
@@ -594,6 +596,18 @@ def test_loop_at_the_end_of_merged_arms_is_entered_on_the_tip_arms_side(side):
     # The skeleton runs one line down the merged arms into a loop, the same both ways round;
     # the thread leaving the stroke lies on the returning arm's side.
     truth = teardrop(side)
+    result = order_sequence(draw([truth], width=2), truth[0])
+    check_follows(result.points, truth, tolerance=3.0)
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+@pytest.mark.parametrize("heading", [0.0, 0.52, 1.05, 2.09, 2.62, 5.76])
+def test_loop_at_the_end_of_arms_1_5_px_apart_is_gone_round_the_way_the_thread_leaves(heading, side):
+    # Arms 1.5 px apart drawn 2 px wide: the stroke is a pixel wider than the thread leaving it.
+    # Near the stroke the leaving thread's skeleton still bends over from the stroke's centre,
+    # and a skeleton a pixel wide runs up to a pixel aside: the leaving line is fitted to the
+    # thread's mask pixels farther out.
+    truth = teardrop(side, gap=1.5, heading=heading, start=(300.3, 240.6))
     result = order_sequence(draw([truth], width=2), truth[0])
     check_follows(result.points, truth, tolerance=3.0)
 
