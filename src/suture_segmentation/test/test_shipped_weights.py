@@ -65,7 +65,7 @@ def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) 
     [
         ("m_ost", "legacy", "legacy_train_big"),
         ("m_tosot", "on-site", "onsite_train"),
-        ("m_general", "on-site", "train_r9101"),
+        ("m_general", "on-site", "mix"),
     ],
 )
 def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str, calibration: str) -> None:
