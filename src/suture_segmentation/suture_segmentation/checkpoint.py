@@ -31,7 +31,8 @@ SHIPPED = {
     "m_tosot": WEIGHTS_DIR / "m_tosot.pt",
     "m_ost_int8": WEIGHTS_DIR / "m_ost_int8.onnx",
     "m_tosot_int8": WEIGHTS_DIR / "m_tosot_int8.onnx",
-    # M-oST continued on domain-randomised frames with augmentation: for a camera not seen yet.
+    # M-oST continued on domain-randomised and legacy frames with augmentation: for a camera not
+    # seen yet.
     "m_general": WEIGHTS_DIR / "m_general.pt",
     "m_general_int8": WEIGHTS_DIR / "m_general_int8.onnx",
 }
