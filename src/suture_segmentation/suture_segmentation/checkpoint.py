@@ -31,6 +31,10 @@ SHIPPED = {
     "m_tosot": WEIGHTS_DIR / "m_tosot.pt",
     "m_ost_int8": WEIGHTS_DIR / "m_ost_int8.onnx",
     "m_tosot_int8": WEIGHTS_DIR / "m_tosot_int8.onnx",
+    # M-oST continued on domain-randomised and legacy frames with augmentation: for a camera not
+    # seen yet.
+    "m_general": WEIGHTS_DIR / "m_general.pt",
+    "m_general_int8": WEIGHTS_DIR / "m_general_int8.onnx",
 }
 DEFAULT_WEIGHTS = SHIPPED["m_tosot"]
 ONNX_OPSET = 17
@@ -63,7 +67,8 @@ def save_checkpoint(model: SutureUNet, path: str | Path, meta: dict[str, Any] | 
 def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[SutureUNet, dict[str, Any]]:
     """The model (in eval mode, on ``device``) and its metadata from a checkpoint file.
 
-    ``path``: a .pt file, or a shipped model's name (``"m_ost"``, ``"m_tosot"``; :func:`resolve_weights`).
+    ``path``: a .pt file, or a shipped model's name (``"m_ost"``, ``"m_tosot"``, ``"m_general"``;
+    :func:`resolve_weights`).
 
     Raises:
         WeightsError: missing file, not a torch file, wrong format or mismatching tensors.

@@ -60,6 +60,12 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
         action="store_true",
         help="vary colour, exposure, contrast, tone, focus and noise of the training crops",
     )
+    parser.add_argument(
+        "--augment",
+        action="store_true",
+        help="warp (rotation, scale, shear, perspective) and re-colour (colour, gamma, blur, noise) "
+        "every training batch with kornia, image and mask alike",
+    )
     parser.add_argument("--seed", type=int, default=defaults.seed)
     parser.add_argument("--threads", type=int, help="CPU threads (default: all)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
@@ -128,6 +134,7 @@ def training_config(args: argparse.Namespace):  # -> TrainConfig
         learning_rate=args.lr,
         loss=args.loss,
         photometric=args.photometric,
+        augment=args.augment,
         seed=args.seed,
         threads=args.threads,
     )

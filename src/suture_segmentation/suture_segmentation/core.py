@@ -50,9 +50,9 @@ class Segmenter:
     ----------
     weights : str or pathlib.Path, optional
         A ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx`` file
-        (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"`` (or their
-        int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``) for a shipped model, or None for
-        the shipped M-ToSOT.
+        (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"``/``"m_general"``
+        (or their int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``/``"m_general_int8"``) for a
+        shipped model, or None for the shipped M-ToSOT.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
     device : str

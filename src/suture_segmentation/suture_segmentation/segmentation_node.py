@@ -14,9 +14,10 @@ pixels above ``low_threshold`` connected to it, :meth:`Segmenter.segment_pair_wi
 ordering_node follows where the thread is faint; ``low_threshold`` 0 publishes none.
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped M-ToSOT
-model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot" name a shipped model and
-"m_ost_int8"/"m_tosot_int8" its int8 ONNX export (backend onnx); anything else is a ``.pt``
-checkpoint or an ``.onnx`` file.
+model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot"/"m_general" name a shipped
+model and "m_ost_int8"/"m_tosot_int8"/"m_general_int8" its int8 ONNX export (backend onnx);
+anything else is a ``.pt`` checkpoint or an ``.onnx`` file. ``m_general`` (trained on
+domain-randomised frames) is meant for a camera that none of the models has seen.
 
 Weights that cannot be loaded (missing, corrupt, not a suture U-Net) stop the node at
 start-up: ``ros2 run`` prints one line, ``segmentation_node: cannot load weights: ...``, on
@@ -74,7 +75,7 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         ParameterSpec(
             "weights",
             "",
-            'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot"[_int8], or a .pt/.onnx file',
+            'model weights: "" = shipped M-ToSOT, "m_ost"/"m_tosot"/"m_general"[_int8], or a .pt/.onnx file',
         ),
         ParameterSpec("backend", "onnx", "inference backend: onnx (ONNX Runtime) or torch"),
         ParameterSpec("device", "cpu", "cpu or cuda[:N]"),

@@ -50,6 +50,8 @@ class TrainConfig:
         loss: "ce" (the paper), "ce_dice" or "ce_skeleton" (:func:`segmentation_loss`).
         on_thread: fraction of crops centred on the thread.
         photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
+        augment: warp and re-colour every batch with kornia
+            (:func:`~suture_segmentation.augment.make_augmenter`), after ``photometric``.
         seed: seeds numpy and torch.
         threads: torch CPU threads (None: the default).
     """
@@ -62,6 +64,7 @@ class TrainConfig:
     loss: str = "ce"
     on_thread: float = 0.7
     photometric: bool = False
+    augment: bool = False
     seed: int = 0
     threads: int | None = None
 
@@ -150,6 +153,11 @@ def train(
     sampler = CropSampler(
         training, config.crop, config.on_thread, np.random.default_rng(config.seed), config.photometric
     )
+    augmenter = None
+    if config.augment:
+        from suture_segmentation.augment import augment_batch, make_augmenter
+
+        augmenter = make_augmenter()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     model.to(device).train()
@@ -174,6 +182,8 @@ def train(
         )
         for _ in bar:
             images, labels = sampler.batch(config.batch_size)
+            if augmenter is not None:
+                images, labels = augment_batch(augmenter, images, labels)
             logits = model(torch.from_numpy(images).to(device))
             loss = segmentation_loss(logits, torch.from_numpy(labels).to(device), config.loss)
             optimiser.zero_grad(set_to_none=True)

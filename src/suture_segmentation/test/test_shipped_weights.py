@@ -21,7 +21,7 @@ from suture_sim.scene import SimConfig, generate_frame
 MIN_TOSOT_IOU = 0.72
 
 
-@pytest.mark.parametrize("name", ["m_ost", "m_tosot"])
+@pytest.mark.parametrize("name", ["m_ost", "m_tosot", "m_general"])
 def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     path = SHIPPED[name]
     assert path.stat().st_size < 2_000_000
@@ -30,9 +30,13 @@ def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     # with --photometric; M-ToSOT is its fine-tune
     expected = "suture-seg finetune" if name == "m_tosot" else "suture-seg train --init"
     assert meta["command"].startswith(expected) and isinstance(meta["config"]["seed"], int)
-    if name == "m_ost":
+    if name in ("m_ost", "m_general"):
         assert meta["initialised_from"]["command"].startswith("suture-seg train --init")
+    if name == "m_ost":
         assert meta["config"]["photometric"] and "--photometric" in meta["command"]
+    if name == "m_general":  # M-oST continued on domain-randomised frames, kornia augmentation
+        assert meta["config"]["augment"] and "--augment" in meta["command"]
+        assert meta["initialised_from"]["weights"] == "m_ost"
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +62,11 @@ def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) 
 
 @pytest.mark.parametrize(
     ("name", "domain", "calibration"),
-    [("m_ost", "legacy", "legacy_train_big"), ("m_tosot", "on-site", "onsite_train")],
+    [
+        ("m_ost", "legacy", "legacy_train_big"),
+        ("m_tosot", "on-site", "onsite_train"),
+        ("m_general", "on-site", "mix"),
+    ],
 )
 def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str, calibration: str) -> None:
     path = SHIPPED[f"{name}_int8"]

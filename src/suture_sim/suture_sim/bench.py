@@ -23,7 +23,7 @@ from suture_common.camera import StereoCamera
 from suture_sim.cli import resolution
 from suture_sim.output import write_frame
 from suture_sim.parallel import generate_frames
-from suture_sim.scene import TOPOLOGY_CHOICES, SimConfig
+from suture_sim.scene import DOMAINS, TOPOLOGY_CHOICES, SimConfig
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -31,7 +31,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--resolution", type=resolution, default=(640, 480))
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--domain", default="legacy", choices=("legacy", "on-site"))
+    parser.add_argument("--domain", default="legacy", choices=DOMAINS)
     parser.add_argument("--topology", default="mixed", choices=TOPOLOGY_CHOICES)
     args = parser.parse_args(argv)
     config = SimConfig(

@@ -80,7 +80,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--domain",
         choices=DOMAINS,
         default="legacy",
-        help="appearance domain: legacy (offline training) or on-site (new endoscope)",
+        help="appearance domain: legacy (offline training), on-site (new endoscope) or random "
+        "(domain randomisation: looks, backgrounds, thread colours and widths far wider than both)",
     )
     parser.add_argument(
         "--background",

@@ -47,6 +47,14 @@ in half of their frames the target's far end enters the tissue: the buried part
 stays in the sequences and the path, marked hidden like any covered point, and
 is in neither mask. Frames of the five paper topologies are unchanged by them:
 each topology draws from its own random stream.
+
+The ``random`` domain (domain randomisation for training) draws the same scenes as the other
+domains and then changes their appearance from a random stream of its own (so ``legacy`` and
+``on-site`` frames stay as they were for a seed): the background cycles through tissue, phantom
+and printed with its colours remapped, threads get any colour that contrasts with it (the named
+ones or random ones) and a diameter of 1 to 8 px in the image, the instruments' colours vary and
+30 % of the frames of topologies without one get a thin instrument, the light's ambient share and
+position vary, and the camera look is the ``random`` one of ``appearance.sample_look``.
 """
 
 from __future__ import annotations
@@ -67,7 +75,7 @@ HARD_TOPOLOGIES = ("hooked", "wide_occlusion", "along_rows")
 MIXTURES = {"mixed": TOPOLOGIES, "hard": HARD_TOPOLOGIES}
 #: Every value ``SimConfig.topology`` accepts.
 TOPOLOGY_CHOICES = (*TOPOLOGIES, *HARD_TOPOLOGIES, *MIXTURES)
-DOMAINS = ("legacy", "on-site")
+DOMAINS = ("legacy", "on-site", "random")
 BACKGROUNDS = ("tissue", "phantom", "printed")
 #: ``raster``: the fast ray-cast renderer of ``render``; ``cycles``: Blender Cycles (``cycles``).
 RENDERERS = ("raster", "cycles")
@@ -86,6 +94,11 @@ THREAD_COLOURS = {
 #: at least this factor (against the background's median albedo): a thread that no annotator
 #: could see (white on a pale phantom) must not be in the ground-truth mask.
 MIN_COLOUR_CONTRAST = 2.0
+
+#: Random domain: thread diameter in the image (px at the thread's median depth), log-uniform.
+RANDOM_DIAMETER_PX = (1.0, 8.0)
+#: Random domain: share of the frames of topologies without an instrument that get one.
+RANDOM_INSTRUMENT_SHARE = 0.3
 
 MIN_DEPTH, MAX_DEPTH = 0.050, 0.150
 MIN_LENGTH, MAX_LENGTH = 0.060, 0.150
@@ -112,7 +125,8 @@ class SceneError(RuntimeError):
 @dataclass(frozen=True)
 class SimConfig:
     """What to simulate. ``background`` None means: tissue for legacy, phantom or
-    printed (alternating) for on-site. ``samples`` is the Cycles renderer's samples per pixel."""
+    printed (alternating) for on-site, tissue, phantom and printed in turn for random.
+    ``samples`` is the Cycles renderer's samples per pixel."""
 
     topology: str
     camera: StereoCamera
@@ -135,7 +149,7 @@ class SimConfig:
                 f"unknown topology {self.topology!r}; choose one of {', '.join(TOPOLOGY_CHOICES)}"
             )
         if self.domain not in DOMAINS:
-            raise ValueError(f"unknown domain {self.domain!r}; choose legacy or on-site")
+            raise ValueError(f"unknown domain {self.domain!r}; choose one of {', '.join(DOMAINS)}")
         if self.background is not None and self.background not in BACKGROUNDS:
             raise ValueError(
                 f"unknown background {self.background!r}; choose one of {', '.join(BACKGROUNDS)}"
@@ -150,6 +164,8 @@ class SimConfig:
     def background_of(self, index: int) -> str:
         if self.background is not None:
             return self.background
+        if self.domain == "random":
+            return BACKGROUNDS[index % len(BACKGROUNDS)]
         return "tissue" if self.domain == "legacy" else ("phantom", "printed")[index % 2]
 
 
@@ -194,6 +210,11 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
     topology = config.topology_of(index)
     topology_key = (*TOPOLOGIES, *HARD_TOPOLOGIES).index(topology)
     rng = np.random.default_rng([config.seed, index, topology_key])
+    # The random domain's own draws (trailing 2): the scene draws of ``rng`` stay those of the
+    # other domains, and those domains never touch this stream.
+    extra = None
+    if config.domain == "random":
+        extra = np.random.default_rng([config.seed, index, topology_key, 2])
     background = config.background_of(index)
     camera = config.camera
     for _ in range(60):
@@ -205,6 +226,8 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
             position=np.array([camera.baseline / 2, rng.uniform(-0.003, 0.003), -0.002]),
             reference_distance=float(np.median(scene.target[:, 2])) * rng.uniform(0.85, 1.15),
         )
+        if extra is not None:
+            scene, lighting = _randomise(scene, lighting, topology, camera, extra)
         if config.renderer == "cycles":
             from suture_sim import cycles
 
@@ -221,13 +244,81 @@ def generate_frame(config: SimConfig, index: int) -> SimFrame:
         else:
             left = render_view(camera, "left", scene.surface, scene.tubes, lighting)
             right = render_view(camera, "right", scene.surface, scene.tubes, lighting)
-        frame = _annotate(config, index, topology, background, scene, left, right, rng)
+        frame = _annotate(config, index, topology, background, scene, left, right, rng, extra)
         if frame is not None:
             return frame
     raise SceneError(
         f"could not draw a valid {topology} scene for {camera.width}x{camera.height} "
         f"with fx={camera.fx:.0f} px after 60 tries; check the camera intrinsics"
     )
+
+
+def _random_colour(background: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A linear-RGB thread albedo (3,) that contrasts with the (3,) ``background`` median albedo as
+    :func:`contrasting_colours` asks: a named colour (jittered) in half of the draws, else any."""
+    named = [THREAD_COLOURS[n] for n in contrasting_colours(background[None, None, :])]
+    for _ in range(50):
+        if named and rng.random() < 0.5:
+            colour = np.array(named[rng.integers(len(named))]) * rng.uniform(0.6, 1.4, 3)
+        else:
+            colour = np.exp(rng.uniform(np.log(0.01), np.log(0.9), 3))
+        colour = np.clip(colour, 0.005, 0.95)
+        ratio = np.log(colour / np.maximum(background, 1e-3))
+        if np.max(np.abs(ratio)) >= np.log(MIN_COLOUR_CONTRAST):
+            return colour
+    return np.array(THREAD_COLOURS["black"] if background.max() > 0.1 else THREAD_COLOURS["white"])
+
+
+def _randomise(
+    scene: _Scene, lighting: Lighting, topology: str, camera: StereoCamera, rng: np.random.Generator
+) -> tuple[_Scene, Lighting]:
+    """The random domain's appearance of a drawn scene (module docstring); ``rng`` is its own
+    stream. Thicker threads are lifted by the change of radius, so they rest where they did."""
+    texture = scene.surface.texture
+    remap = appearance._saturation_matrix(rng.uniform(0.4, 1.5)) @ appearance._hue_rotation(
+        rng.uniform(-60.0, 60.0)
+    )
+    gains = rng.uniform(0.6, 1.4, 3) * rng.uniform(0.6, 1.3)
+    albedo = np.clip(texture.albedo @ (remap * gains[None, :]).T.astype(np.float32), 0.0, 1.0)
+    surface = Surface(
+        depth0=scene.surface.depth0,
+        slope=scene.surface.slope,
+        texture=replace(texture, albedo=albedo.astype(np.float32)),
+        origin=scene.surface.origin,
+    )
+    background = np.median(albedo.reshape(-1, 3), axis=0)
+    tubes: list[Tube] = []
+    target, radius = scene.target, scene.radius
+    for tube in scene.tubes:
+        if tube.owner == INSTRUMENT:
+            tint = rng.uniform(0.9, 1.1, 3)
+            tubes.append(replace(tube, colour=np.clip(tube.colour * rng.uniform(0.4, 1.8) * tint, 0.02, 0.9)))
+            continue
+        depth = float(np.median(tube.axis[:, 2]))
+        diameter_px = np.exp(rng.uniform(*np.log(RANDOM_DIAMETER_PX)))
+        new_radius = 0.5 * diameter_px * depth / camera.fx
+        axis = tube.axis - np.array([0.0, 0.0, new_radius - tube.radius])
+        if tube.owner == 0:
+            target, radius = axis, new_radius
+        tubes.append(
+            replace(
+                tube,
+                axis=axis,
+                radius=new_radius,
+                colour=_random_colour(background, rng),
+                specular=rng.uniform(0.0, 0.8),
+                braid=rng.choice([0.0, rng.uniform(0.05, 0.4)]),
+                shininess=rng.uniform(0.15, 0.6),
+            )
+        )
+    if topology not in ("occluded", "wide_occlusion") and rng.random() < RANDOM_INSTRUMENT_SHARE:
+        tubes += _instrument(target, camera, rng, THIN_INSTRUMENT)
+    lighting = Lighting(
+        position=lighting.position + np.r_[rng.uniform(-0.004, 0.004, 2), 0.0],
+        reference_distance=lighting.reference_distance * rng.uniform(0.8, 1.25),
+        ambient=rng.uniform(0.03, 0.35),
+    )
+    return _Scene(surface, tubes, target, radius), lighting
 
 
 def _sample_scene(topology: str, background: str, camera: StereoCamera, rng: np.random.Generator) -> _Scene:
@@ -634,7 +725,10 @@ def _annotate(
     left: ViewRender,
     right: ViewRender,
     rng: np.random.Generator,
+    look_rng: np.random.Generator | None = None,
 ) -> SimFrame | None:
+    """The frame's ground truth and camera images, or None where the scene breaks a rule of its
+    topology. The look and its noise come from ``look_rng`` when given, else from ``rng``."""
     camera = config.camera
     target = scene.target
     # ~1 px spacing in the left view, the same 3D samples in both views.
@@ -661,7 +755,8 @@ def _annotate(
         path = np.vstack([path, target[-1]])
     position, tangent = point_at_arc_length(target, config.grasp_arc_length)
     quaternion = rotation_to_quaternion(grasp_rotation(position, tangent))
-    look = appearance.sample_look(config.domain, rng)
+    look_rng = rng if look_rng is None else look_rng
+    look = appearance.sample_look(config.domain, look_rng)
     hint_offset = rng.uniform(0, 3) * np.array([np.cos(a := rng.uniform(0, 2 * np.pi)), np.sin(a)])
     return SimFrame(
         index=index,
@@ -669,8 +764,8 @@ def _annotate(
         topology=topology,
         background=background,
         camera=camera,
-        left_image=appearance.apply_look(left.image, look, rng),
-        right_image=appearance.apply_look(right.image, look, rng),
+        left_image=appearance.apply_look(left.image, look, look_rng),
+        right_image=appearance.apply_look(right.image, look, look_rng),
         left_mask=(left.thread_mask * 255).astype(np.uint8),
         right_mask=(right.thread_mask * 255).astype(np.uint8),
         left_sequence=np.column_stack([camera.project(samples, "left"), visible_left]),
