@@ -37,7 +37,9 @@ graph, or camera_info lost during discovery) are held, the newest ``max_pending`
 when it arrives (:class:`suture_common.camera.CameraInfoCache` keeps it). A malformed input
 (wrong encoding, size mismatch, unusable camera_info, empty mask, tip hint outside the image
 or NaN, a thread without free end...) drops that frame with one throttled warning naming the
-problem; the node keeps serving.
+problem; the node keeps serving. So does an ordering it cannot trust: mask pixels near either
+view's cut tip that the sequence does not explain (a hook or loop the search skipped,
+``UnexplainedTipError``, parameters ``tip_unexplained_radius_px`` and ``tip_unexplained_max_px``).
 """
 
 from __future__ import annotations
