@@ -340,12 +340,7 @@ def _stroke_side(
     beyond = np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]])
     if not to_mask:
         leaving = _within(beyond, 1.0, 2 * reach)
-        if len(leaving) < 3:
-            return None
-        centre = leaving.mean(axis=0)
-        axis = np.linalg.svd(leaving - centre, full_matrices=False)[2][0]
-        near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
-        return -_offset(thread.data[near], centre, axis), centre, axis
+        return _side_of_line(leaving, thread, pixels, reach) if len(leaving) >= 3 else None
     leaving = _within(beyond, LEAVE_FROM * reach, LEAVE_TO * reach)
     if len(leaving) < 3:
         return None
@@ -356,10 +351,14 @@ def _stroke_side(
     from_leaving = np.hypot(*(own[:, None, :] - leaving[None, :, :]).transpose(2, 0, 1)).min(axis=1)
     from_stroke = np.hypot(*(own[:, None, :] - pixels[None, :, :]).transpose(2, 0, 1)).min(axis=1)
     own = own[from_leaving < from_stroke]  # not the stroke's pixels next to the thread's start
-    if len(own) < 3:
-        return None
-    centre = own.mean(axis=0)
-    axis = np.linalg.svd(own - centre, full_matrices=False)[2][0]
+    return _side_of_line(own, thread, pixels, reach) if len(own) >= 3 else None
+
+
+def _side_of_line(points, thread, pixels, reach):
+    """The stroke's offset from the line fitted to ``points`` (K, 2), with the line's centre and
+    axis: the thread pixels within ``reach / 2`` of the stroke's ``pixels``, measured across it."""
+    centre = points.mean(axis=0)
+    axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
     near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
     return -_offset(thread.data[near], centre, axis), centre, axis
 
