@@ -78,14 +78,19 @@ def quaternion_to_rotation(quaternion: np.ndarray) -> np.ndarray:
     )
 
 
-def point_at_arc_length(polyline: np.ndarray, arc_length: float) -> tuple[np.ndarray, np.ndarray]:
+def point_at_arc_length(
+    polyline: np.ndarray, arc_length: float, arc: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Point (3,) and unit tangent (3,) at ``arc_length`` metres along an (N, 3) polyline.
 
+    ``arc`` (N,), increasing from 0: the vertices' arc lengths when they are not the polyline's
+    own (a curve whose arc keeps what its sampling cut off); the point is interpolated on it.
     Raises ValueError when the polyline is shorter than ``arc_length``.
     """
     polyline = np.asarray(polyline, dtype=np.float64)
     steps = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
-    cumulative = np.concatenate([[0.0], np.cumsum(steps)])
+    own = arc is None
+    cumulative = np.concatenate([[0.0], np.cumsum(steps)]) if own else np.asarray(arc, dtype=np.float64)
     if arc_length < 0 or arc_length > cumulative[-1]:
         raise ValueError(
             f"thread is {cumulative[-1] * 1000:.1f} mm long, shorter than the reserved "
@@ -94,7 +99,8 @@ def point_at_arc_length(polyline: np.ndarray, arc_length: float) -> tuple[np.nda
     index = int(np.clip(np.searchsorted(cumulative, arc_length, side="right") - 1, 0, len(steps) - 1))
     while steps[index] == 0 and index > 0:
         index -= 1
-    fraction = (arc_length - cumulative[index]) / steps[index]
+    span = steps[index] if own else cumulative[index + 1] - cumulative[index]
+    fraction = (arc_length - cumulative[index]) / span if span > 0 else 1.0
     point = polyline[index] + fraction * (polyline[index + 1] - polyline[index])
     tangent = (polyline[index + 1] - polyline[index]) / steps[index]
     return point, tangent

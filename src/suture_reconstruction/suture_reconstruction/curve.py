@@ -29,6 +29,7 @@ from scipy.interpolate import make_interp_spline
 from suture_common.grasp import (
     DegenerateGraspFrameError,
     grasp_rotation,
+    point_at_arc_length,
     rotation_to_quaternion,
 )
 from suture_reconstruction.errors import ReconstructionError, ThreadTooShortError
@@ -161,13 +162,7 @@ def grasp_pose(curve: ArcLengthCurve, arc_length: float) -> GraspPose:
             f"{arc_length * 1000:.1f} mm from the cut tip: no grasp point (lower grasp_arc_length or "
             "check that the whole thread is in view)"
         )
-    position = curve.at(arc_length)
-    after = int(np.clip(np.searchsorted(curve.arc, arc_length, side="right"), 1, len(curve.arc) - 1))
-    tangent = curve.samples[after] - curve.samples[after - 1]
-    while not np.any(tangent) and after > 1:  # samples on top of each other
-        after -= 1
-        tangent = curve.samples[after] - curve.samples[after - 1]
-    tangent = tangent / max(float(np.linalg.norm(tangent)), 1e-15)
+    position, tangent = point_at_arc_length(curve.samples, arc_length, curve.arc)
     try:
         rotation = grasp_rotation(position, tangent)
     except DegenerateGraspFrameError as exc:
