@@ -654,12 +654,7 @@ def test_another_strand_near_the_right_tip_is_not_read_as_a_hook():
     nearer to it in the right view than in the left: the left view sees no hook, so the right
     view, the same thread, follows its free end along the target rather than walking onto the
     other strand (which took the grasp 35 mm away)."""
-    stored = np.load(Path(__file__).parent / "data" / "crossing_near_the_right_tip.npz")
-    size = int(np.prod(stored["shape"]))
-    left, right = (np.unpackbits(stored[view])[:size].reshape(stored["shape"]) for view in ("left", "right"))
-    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
-    check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0)
-    check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0)
+    check_stored_stereo_frame("crossing_near_the_right_tip.npz")
 
 
 def test_right_view_goes_round_a_hooks_loop_the_way_the_left_view_does():
@@ -668,7 +663,13 @@ def test_right_view_goes_round_a_hooks_loop_the_way_the_left_view_does():
     The right view's skeleton is the same both ways round the loop and its least-turning walk
     went round against the thread (the grasp came out 34 mm off); the right view's walk now
     follows the left view's, shifted by the tip's disparity."""
-    stored = np.load(Path(__file__).parent / "data" / "hooked_loop_merged_arms_stereo.npz")
+    check_stored_stereo_frame("hooked_loop_merged_arms_stereo.npz")
+
+
+def check_stored_stereo_frame(name: str) -> None:
+    """Order a stored 640x480 stereo frame (test/data/NAME: packed masks, hint, true sequences)
+    and check that both views follow their true sequences within 3 px."""
+    stored = np.load(Path(__file__).parent / "data" / name)
     size = int(np.prod(stored["shape"]))
     left, right = (np.unpackbits(stored[view])[:size].reshape(stored["shape"]) for view in ("left", "right"))
     ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
