@@ -24,13 +24,20 @@ import numpy as np
 
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
-from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError
+from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError, TipNotOnThreadError
 from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
-from suture_ordering.tip import automatic_tip, check_hint, right_tip, tip_from_hint
+from suture_ordering.tip import (
+    automatic_tip,
+    check_hint,
+    right_tip,
+    right_tip_across_gap,
+    tip_across_gap,
+    tip_from_hint,
+)
 from suture_ordering.tip_check import check_tip_explained
 
 
@@ -208,11 +215,42 @@ def _order_view(
         if hook is None:
             raise
         return _search(prepared, tip, "hint", started, hook), prepared, True
+    except TipNotOnThreadError:
+        end = None
+        if scaled.tip_gap_max > 0:
+            end = tip_across_gap(clean, tip, scaled.tip_radius, scaled.tip_gap_max, params.tip_gap_max_angle)
+        if end is None:
+            raise
+        return _with_tip_gap(_search(prepared, end, "hint", started), tip), prepared, False
     result = _search(prepared, start, "hint", started)
     hook = hook_after_search(clean, tip, start, result.points, scaled)
     if hook is None:
         return result, prepared, False
     return _search(prepared, tip, "hint", started, hook), prepared, True
+
+
+def _with_tip_gap(result: OrderingResult, tip: np.ndarray) -> OrderingResult:
+    """``result`` with a straight stretch from ``tip`` to its first point put in front, 1 px
+    apart and flagged bridged: the cut end the mask lost (:func:`suture_ordering.tip.tip_across_gap`)."""
+    tip = np.asarray(tip, dtype=np.float64)
+    first = result.points[0]
+    count = max(1, int(np.ceil(np.hypot(*(first - tip)))))
+    stretch = tip + (first - tip) * (np.arange(count) / count)[:, None]
+    return dataclasses.replace(
+        result,
+        points=np.vstack([stretch, result.points]),
+        bridged=np.concatenate([np.ones(count, dtype=bool), result.bridged]),
+        tip=tip,
+        bridges=result.bridges + 1,
+    )
+
+
+def _tip_gap(result: OrderingResult) -> int:
+    """How many points at the start of ``result`` bridge a cut end the mask lost."""
+    if len(result.bridged) == 0 or not result.bridged[0]:
+        return 0
+    seen = np.flatnonzero(~result.bridged)
+    return int(seen[0]) if seen.size else len(result.bridged)
 
 
 def order_stereo(
@@ -329,7 +367,9 @@ def _masks_or_low_masks(
     except OrderingError:
         return ordering
     gains = [_length(low.left) / _length(ordering.left), _length(low.right) / _length(ordering.right)]
-    if max(gains) > 1 + params.low_mask_min_gain and min(gains) >= 1 - params.low_mask_max_loss:
+    # Seeing the cut end beats bridging it from the hint.
+    sees_tip = _tip_gap(low.left_result) < _tip_gap(ordering.left_result)
+    if sees_tip or (max(gains) > 1 + params.low_mask_min_gain and min(gains) >= 1 - params.low_mask_max_loss):
         return dataclasses.replace(low, low_masks_used=True)
     return ordering
 
@@ -341,9 +381,12 @@ def _right_view(
     left_hooked: bool,
     disparity_range: tuple[float, float],
     started: float,
+    tip_gap_max_angle: float,
 ) -> OrderingResult:
     """The right view's ordering from the left tip: the free end on its epipolar band, or,
-    when the left tip lies in a hook or the band has no free end, through the hook at the
+    when the band has no thread at all (the mask lost the cut end), the thread end that points
+    back at it across the gap (:func:`suture_ordering.tip.right_tip_across_gap`), the stretch
+    bridged; when the left tip lies in a hook or the band has no free end, through the hook at the
     pixel that the left tip's neighbourhood matches (:func:`suture_ordering.hooks.stereo_tip`).
     A search from the band's free end is checked for a hook only where the left view had one:
     another strand near the right tip is not read as a hook the left view did not see. Through
@@ -357,6 +400,15 @@ def _right_view(
         missing = None
     except NoFreeEndError as error:
         start, missing = None, error
+    except TipNotOnThreadError:
+        found = None
+        if scaled.tip_gap_max > 0 and not left.bridged[0]:
+            found = right_tip_across_gap(
+                clean, left.points, disparity_range, scaled.tip_radius, scaled.tip_gap_max, tip_gap_max_angle
+            )
+        if found is None:
+            raise
+        return _with_tip_gap(_search(prepared, found[0], "epipolar", started), found[1])
     if start is None or left_hooked:
         guess = stereo_tip(
             left_prepared.clean.mask, clean, left_tip, disparity_range, scaled.row_tolerance, scaled
@@ -399,7 +451,15 @@ def _order_pair(
     right_prepared = _prepare(right_mask, params, "right")
     d_min = float(camera.disparity(params.max_depth_m))
     d_max = float(camera.disparity(params.min_depth_m))
-    right = _right_view(right_prepared, left_prepared, left, left_hooked, (d_min, d_max), started)
+    gap, angle = _tip_gap(left), params.tip_gap_max_angle
+    if gap == 0:
+        right = _right_view(right_prepared, left_prepared, left, left_hooked, (d_min, d_max), started, angle)
+    else:  # the right view starts where the left one's mask does, and gets the same gap
+        seen = dataclasses.replace(
+            left, points=left.points[gap:], bridged=left.bridged[gap:], tip=left.points[gap]
+        )
+        right = _right_view(right_prepared, left_prepared, seen, left_hooked, (d_min, d_max), started, angle)
+        right = _with_tip_gap(right, left.tip + (right.points[0] - left.points[gap]))
     # Where one view's search stopped at a gap and the other's went on, follow the other view.
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))
     sequences, filled = [], []

@@ -36,7 +36,12 @@ def flagged_sequence(
     starts, stops = np.flatnonzero(change == 1), np.flatnonzero(change == -1)
     pieces, taken = [], 0
     for start, stop in zip(starts, stops, strict=True):  # one per gap: few
-        if start == 0 or stop >= len(points):
+        if stop >= len(points):
+            continue
+        if start == 0:  # a cut end the mask lost, in front of the first point seen
+            if taken == 0 and np.all(sequence[0] == points[stop]):
+                flags = np.ones(stop) if mask is None else _off_mask_between_ends(points[:stop], mask)
+                pieces.append(np.column_stack([points[:stop], flags]))
             continue
         before, after = points[start - 1], points[stop]
         at = np.flatnonzero(

@@ -197,6 +197,24 @@ class OrderingParams:
             "the cut tip is the free end nearest to the tip hint, at most this far from it (px)", (0.0, 640.0)
         ),
     )
+    tip_gap_max_px: float = field(
+        default=48.0,
+        metadata=described(
+            "when the mask has no thread within tip_radius_px of the tip hint (the segmenter lost the "
+            "cut end), the search starts at the thread end that points at the hint from at most this "
+            "far, and the stretch from the hint to it is published as not seen; 0: refuse instead "
+            "(TipNotOnThreadError) (px)",
+            (0.0, 640.0),
+        ),
+    )
+    tip_gap_max_angle: float = field(
+        default=0.5,
+        metadata=described(
+            "largest angle between the thread's direction at that end and the way from it to the "
+            "tip hint (rad)",
+            (0.0, 3.1416),
+        ),
+    )
     tip_unexplained_radius_px: float = field(
         default=16.0,
         metadata=described(
@@ -343,10 +361,14 @@ class OrderingParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0 <= value < 1):
                 raise ValueError(f"OrderingParams.{name} must be in [0, 1), got {value!r}")
-        for name in ("tip_unexplained_radius_px", "tip_unexplained_max_px"):
+        for name in ("tip_unexplained_radius_px", "tip_unexplained_max_px", "tip_gap_max_px"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"OrderingParams.{name} must be >= 0, got {value!r}")
+        if not 0 < self.tip_gap_max_angle <= math.pi:
+            raise ValueError(
+                f"OrderingParams.tip_gap_max_angle must be in (0, pi], got {self.tip_gap_max_angle!r}"
+            )
         if self.max_hole_area_px < 0:
             raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
         if int(self.max_steps) != self.max_steps or self.max_steps < 1:
@@ -380,6 +402,7 @@ class ScaledParams:
     max_reach: int
     detect_radius: float
     tip_radius: float
+    tip_gap_max: float
     max_hole_area: float
     min_blob_extent: float
     row_tolerance: float
@@ -398,6 +421,7 @@ class ScaledParams:
             max_reach=max(roi, math.ceil(tau_o)),
             detect_radius=params.detect_radius_px * s,
             tip_radius=params.tip_radius_px * s,
+            tip_gap_max=params.tip_gap_max_px * s,
             max_hole_area=params.max_hole_area_px * s * s,
             min_blob_extent=params.min_blob_extent_px * s,
             row_tolerance=params.row_tolerance_px * s,

@@ -8,7 +8,9 @@ millisecond.
 
 * **With a hint** (the paper's manual indication, ``/suture/tip_hint``): the free
   end nearest to the hint within ``tip_radius`` px. No thread pixel within that
-  radius: :class:`TipNotOnThreadError`; thread pixels but no free end (a closed
+  radius: :class:`TipNotOnThreadError`, unless a thread end points at the hint from
+  a little farther (:func:`tip_across_gap`: the segmenter lost the cut end; the
+  caller bridges the stretch and flags it not seen); thread pixels but no free end (a closed
   ring, or a hint on the middle of a thread): :class:`NoFreeEndError`.
 * **Without a hint** (automatic rule): the free end of the largest thread (the
   skeleton component with most pixels) that lies nearest to the image centre.
@@ -19,7 +21,9 @@ millisecond.
   ``row_tolerance`` px) whose disparity ``u_left - u_right`` lies in
   ``[camera.disparity(max_depth), camera.disparity(min_depth)]`` (17 to 52 px for
   the default 640 px camera and 50 to 150 mm), widened by the row tolerance; of
-  several, the one on the nearest row.
+  several, the one on the nearest row. No thread on that band at all: the end that points
+  back at the left tip shifted by the disparity of the row where it starts
+  (:func:`right_tip_across_gap`).
 """
 
 from __future__ import annotations
@@ -55,22 +59,10 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     mask pixels alone cannot give the axis: when the skeleton is that short, they lie on both
     sides of ``end``.)
     """
-    r = int(np.ceil(radius))
-    u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
-    window = np.asarray(mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1], dtype=np.uint8)
-    _, pieces = cv2.connectedComponents(window, connectivity=8)
-    own = pieces[int(end[1]) - v0, int(end[0]) - u0]
-    if own == 0:  # not on the mask
+    found = _outward_axis(mask, end, radius)
+    if found is None:
         return np.asarray(end, dtype=np.float64)
-    thread = pieces == own  # not another thread passing through the window
-    rows, cols = np.nonzero(skeletonize(thread))
-    inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
-    inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
-    axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
-    norm = float(np.hypot(*axis))
-    if norm < 1e-6:
-        return np.asarray(end, dtype=np.float64)
-    axis /= norm
+    axis, thread, u0, v0 = found
     rows, cols = np.nonzero(thread)
     offset = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
     distance = np.hypot(offset[:, 0], offset[:, 1])
@@ -84,6 +76,107 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     thread_width = int(ring.sum()) / (radius / 2)
     back = min(max(0.0, (thread_width - 1) / 2), float(along[best]) + 0.0)
     return np.asarray(end, dtype=np.float64) + offset[best] - back * axis
+
+
+def _outward_axis(
+    mask: np.ndarray, end: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, int, int] | None:
+    """The unit direction in which the thread leaves the skeleton end ``end`` (from the mean of
+    its skeleton pixels within ``radius`` to ``end``), the thread's own pixels in the window
+    around ``end`` ((h, w) bool) and the window's (u0, v0); None off the mask or on a dot."""
+    r = int(np.ceil(radius))
+    u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
+    window = np.asarray(mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1], dtype=np.uint8)
+    _, pieces = cv2.connectedComponents(window, connectivity=8)
+    own = pieces[int(end[1]) - v0, int(end[0]) - u0]
+    if own == 0:  # not on the mask
+        return None
+    thread = pieces == own  # not another thread passing through the window
+    rows, cols = np.nonzero(skeletonize(thread))
+    inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
+    inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
+    axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
+    norm = float(np.hypot(*axis))
+    if norm < 1e-6:
+        return None
+    return axis / norm, thread, u0, v0
+
+
+def tip_across_gap(
+    mask: np.ndarray, hint: np.ndarray, radius: float, max_gap: float, max_angle: float
+) -> np.ndarray | None:
+    """The thread end that points at ``hint`` across a gap in the mask, or None.
+
+    For a cut tip the segmenter lost (a faint or dark stretch at the end of the thread): the
+    free end of ``mask`` within ``max_gap`` px of ``hint`` whose thread leaves it towards the
+    hint (the angle between its outward direction, :func:`extend_to_end`, and the way to the
+    hint at most ``max_angle`` rad), the nearest of several. Returns (2,) float64 (u, v), the end
+    moved out to the end of the mask. ``radius``: as in :func:`extend_to_end`.
+    """
+    height, width = mask.shape
+    u, v = float(hint[0]), float(hint[1])
+    margin = int(np.ceil(max_gap + radius)) + 8
+    u0, v0 = max(0, int(u) - margin), max(0, int(v) - margin)
+    ends = free_ends(mask[v0 : min(height, int(v) + margin + 1), u0 : min(width, int(u) + margin + 1)])
+    ends = ends + np.array([u0, v0])
+    best, best_distance = None, np.inf
+    for skeleton_end in ends:  # skeleton ends near the hint: a handful
+        end = extend_to_end(mask, skeleton_end, radius)
+        way = np.array([u, v]) - end
+        distance = float(np.hypot(*way))
+        if distance > max_gap or distance >= best_distance or distance < 1e-6:
+            continue
+        found = _outward_axis(mask, skeleton_end, radius)
+        if found is not None and float(np.dot(found[0], way / distance)) >= np.cos(max_angle):
+            best, best_distance = end, distance
+    return best
+
+
+def right_tip_across_gap(
+    mask: np.ndarray,
+    left_points: np.ndarray,
+    disparity_range: tuple[float, float],
+    radius: float,
+    max_gap: float,
+    max_angle: float,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the right mask lost the cut end that the left view sees: (the right thread's end,
+    the right cut tip), each (2,) float64 (u, v), or None.
+
+    The end is a free end of ``mask`` on the row of a point of ``left_points`` ((N, 2) the left
+    sequence from its cut tip) that lies less than ``max_gap`` px of arc from the tip, at a
+    disparity in ``disparity_range``; the right cut tip is the left one shifted as that point
+    is. The thread must leave the end towards that tip (within ``max_angle`` rad), at most
+    ``max_gap`` px away. A row that the left stretch crosses more than once, or along which it
+    runs (disparities more than 4 px apart on it), does not tell the point: no end there.
+    """
+    left = np.asarray(left_points, dtype=np.float64)
+    arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(left, axis=0).T))))
+    near = left[arc < max_gap]
+    d_min, d_max = disparity_range
+    height, width = mask.shape
+    margin = int(np.ceil(radius)) + 8
+    u0 = max(0, int(near[:, 0].min() - d_max) - margin)
+    u1 = min(width, int(near[:, 0].max() - d_min) + margin + 1)
+    v0, v1 = max(0, int(near[:, 1].min()) - margin), min(height, int(near[:, 1].max()) + margin + 1)
+    if u1 <= u0 or v1 <= v0:
+        return None
+    best, best_distance = None, np.inf
+    for skeleton_end in free_ends(mask[v0:v1, u0:u1]) + np.array([u0, v0]):  # a handful
+        end = extend_to_end(mask, skeleton_end, radius)
+        on_row = np.flatnonzero(np.abs(near[:, 1] - end[1]) <= 1.0)
+        disparity = near[on_row, 0] - end[0]
+        if on_row.size == 0 or np.ptp(disparity) > 4.0 or not d_min <= disparity.mean() <= d_max:
+            continue
+        tip = left[0] + (end - near[on_row[np.argmin(np.abs(near[on_row, 1] - end[1]))]])
+        way = tip - end
+        distance = float(np.hypot(*way))
+        if distance > max_gap or distance >= best_distance or distance < 1e-6:
+            continue
+        found = _outward_axis(mask, skeleton_end, radius)
+        if found is not None and float(np.dot(found[0], way / distance)) >= np.cos(max_angle):
+            best, best_distance = (end, tip), distance
+    return best
 
 
 def check_hint(hint: np.ndarray, width: int, height: int, view: str | None = None) -> np.ndarray:

@@ -29,7 +29,7 @@ from suture_ordering import (
     order_stereo,
 )
 from suture_ordering.stereo_fill import splice_skipped_stretch
-from suture_ordering.tip import tip_from_hint
+from suture_ordering.tip import right_tip_across_gap, tip_across_gap, tip_from_hint
 
 W, H = 640, 480
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
@@ -675,3 +675,73 @@ def check_stored_stereo_frame(name: str) -> None:
     ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(640, 480))
     check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0)
     check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0)
+
+
+# --------------------------------------------------------------------------- a cut end the masks lost
+# The search starts at the thread end that points at the tip hint (suture_ordering.tip.tip_across_gap,
+# right_tip_across_gap), and the stretch from the tip to it is published flagged not seen.
+DISPARITY = 30
+
+
+def _thread() -> np.ndarray:
+    s = np.linspace(0, 1, 1500)
+    return np.column_stack([150 + 380 * s, 120 + 250 * s + 60 * np.sin(3 * s)])
+
+
+def _without_cut_end(mask: np.ndarray, up_to_column: int) -> np.ndarray:
+    lost = mask.copy()
+    lost[:, :up_to_column] = 0
+    return lost
+
+
+def _seen_from(sequence: np.ndarray) -> int:
+    seen = np.flatnonzero(sequence[:, 2] == 0)
+    assert seen.size and np.all(sequence[: seen[0], 2] == 1) and np.all(sequence[seen[0] :, 2] == 0)
+    return int(seen[0])
+
+
+def test_a_cut_end_both_masks_lost_is_bridged_from_the_hint_and_flagged_not_seen():
+    truth = _thread()
+    full = draw([truth])
+    left = _without_cut_end(full, 180)  # ~35 px of thread from the tip
+    right = _without_cut_end(_shifted(full, DISPARITY), 180 - DISPARITY)
+    with pytest.raises(TipNotOnThreadError):
+        order_stereo(left, right, truth[0], StereoCamera.default(W, H), OrderingParams(tip_gap_max_px=0.0))
+    result = order_stereo(left, right, truth[0], StereoCamera.default(W, H))
+    for sequence, shift in ((result.left_sequence, 0), (result.right_sequence, DISPARITY)):
+        start = _seen_from(sequence)
+        np.testing.assert_allclose(sequence[0, :2], truth[0] - [shift, 0], atol=1.5)
+        assert 25 <= start <= 45  # the lost stretch, about 1 px apart
+        seen = sequence[start:, :2] + [shift, 0]
+        first = int(np.argmin(np.hypot(*(truth - seen[0]).T)))
+        assert 175 <= truth[first, 0] <= 186  # where the masks start
+        check_follows(seen, truth[first:])
+    assert result.left_result.bridges == 1 and result.left_result.bridged[0]
+
+
+def test_a_thread_end_that_does_not_point_at_the_hint_is_not_taken():
+    straight = line((200, 200), (450, 200))  # its free end at u = 200 points to smaller u
+    mask = draw([straight])
+    beside = np.array([205.0, 170.0])  # 30 px off the end, across the thread's way
+    with pytest.raises(TipNotOnThreadError):
+        order_stereo(mask, _shifted(mask, DISPARITY), beside, StereoCamera.default(W, H))
+    assert tip_across_gap(mask, beside, 12.0, 48.0, 0.5) is None
+    ahead = np.array([170.0, 200.0])  # 30 px on along the thread's way
+    np.testing.assert_allclose(tip_across_gap(mask, ahead, 12.0, 48.0, 0.5), [200.0, 200.0], atol=1.5)
+    too_far = np.array([140.0, 200.0])
+    assert tip_across_gap(mask, too_far, 12.0, 48.0, 0.5) is None
+
+
+def test_a_cut_end_only_the_right_mask_lost_starts_that_view_at_the_shifted_tip():
+    truth = _thread()
+    left = draw([truth])
+    right = _without_cut_end(_shifted(left, DISPARITY), 150)  # ~30 px of the right thread
+    result = order_stereo(left, right, truth[0], StereoCamera.default(W, H))
+    assert not result.left_sequence[:, 2].any()
+    start = _seen_from(result.right_sequence)
+    assert 20 <= start <= 40
+    # The tip shifted as the thread's first seen row is: a pixel's disparity error or two.
+    np.testing.assert_allclose(result.right_sequence[0, :2], truth[0] - [DISPARITY, 0], atol=5.0)
+    found = right_tip_across_gap(right, truth, (17.0, 52.0), 12.0, 48.0, 0.5)
+    assert found is not None
+    np.testing.assert_allclose(found[1], truth[0] - [DISPARITY, 0], atol=5.0)

@@ -72,8 +72,10 @@ def with_not_seen(
     """``seen`` together with the left samples of not-seen stretches (``hidden``) triangulated
     at the disparity interpolated across them, in sequence order.
 
-    Only samples between two seen vertices are added (a not-seen stretch at an end has no
-    depth on its far side), and only with a supported disparity within ``d_range``.
+    Samples between two seen vertices are added with a supported disparity within ``d_range``.
+    A not-seen stretch at the cut tip (an end the segmenter lost, bridged from the tip hint)
+    has no depth in front of it: its samples take the first seen vertex's disparity. One at the
+    far end is left out.
     """
     if seen.index.size == 0:
         return seen
@@ -83,10 +85,14 @@ def with_not_seen(
         )
     index = np.flatnonzero(usable)
     index = index[(index > seen.index[0]) & (index < seen.index[-1])]
+    d = disparity.value[index]
+    if hidden[0]:
+        leading = np.flatnonzero(hidden[: seen.index[0]])
+        index = np.concatenate([leading, index])
+        d = np.concatenate([np.full(leading.size, seen.disparity[0]), d])
     if index.size == 0:
         return seen
     uv = left.points[index]
-    d = disparity.value[index]
     points = camera.triangulate(uv, uv[:, 0] - d)
     order = np.argsort(np.concatenate([seen.index, index]), kind="stable")
     return Triangulated(

@@ -97,3 +97,34 @@ def test_a_nan_flag_is_refused_with_a_clear_message():
     left[5, 2] = np.nan
     with pytest.raises(InvalidSequenceError, match="not-seen flag"):
         reconstruct(left, _flagged_view(thread, arc, "right"), CAMERA)
+
+
+def test_a_cut_end_not_seen_counts_in_the_arc_to_the_grasp():
+    # The first 8 mm of arc from the tip lost by the segmenter: the ordering bridges it straight
+    # from the tip hint and flags it. Its depth is the first seen vertex's, its arc counts.
+    thread, arc = _thread()
+    views = []
+    for view in ("left", "right"):
+        pixels = CAMERA.project(thread, view)
+        step = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pixels, axis=0).T))])
+        keep = np.searchsorted(step, np.arange(0.0, step[-1], 1.0))
+        pixels, kept_arc = pixels[keep], arc[keep]
+        seen_from = int(np.searchsorted(kept_arc, 0.008))
+        count = int(np.ceil(np.hypot(*(pixels[seen_from] - pixels[0]))))
+        chord = pixels[0] + (pixels[seen_from] - pixels[0]) * (np.arange(count) / count)[:, None]
+        views.append(
+            np.vstack(
+                [
+                    np.column_stack([chord, np.ones(count)]),
+                    np.column_stack([pixels[seen_from:], np.zeros(len(pixels) - seen_from)]),
+                ]
+            )
+        )
+    result = reconstruct(views[0], views[1], CAMERA)
+    true_grasp = thread[np.searchsorted(arc, 0.05)]
+    assert np.linalg.norm(result.grasp_position - true_grasp) < 0.002
+    assert np.linalg.norm(result.path[0] - thread[0]) < 0.004  # at the first seen depth: 3 mm nearer
+    path_arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(result.path, axis=0), axis=1))])
+    assert result.path_not_seen[path_arc < 0.006].all()
+    assert not result.path_not_seen[path_arc > 0.010].any()
+    assert result.uncertainty.not_seen_arc_mm > 6.0
