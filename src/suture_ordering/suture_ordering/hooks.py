@@ -231,11 +231,14 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
         incident.setdefault(branch.a, []).append((k, False))
         incident.setdefault(branch.b, []).append((k, True))
     kinds = [(graph.kind[b.a], graph.kind[b.b]) for b in branches]
+    # Optional: branches to the rim, spurs of the thinning (short, to a free end other than the
+    # tip's), and short branches between two junctions or a junction and the tip (the little
+    # cycles that thinning leaves where arms touch diagonally).
     required = [
         k
         for k, b in enumerate(branches)
         if "rim" not in kinds[k]
-        and not ("end" in kinds[k] and b.length < spur and graph.tip not in (b.a, b.b))
+        and not (b.length < spur and ("end" not in kinds[k] or graph.tip not in (b.a, b.b)))
     ]
     found: list[list[tuple[int, bool]]] = []
     uses = [0] * len(branches)
@@ -264,6 +267,43 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
 
     extend(graph.tip, [])
     return found
+
+
+def _places(graph: _Graph, spur: float) -> dict[int, int]:
+    """Each node's place: nodes joined by a branch shorter than ``spur`` px between junctions
+    or the tip (a little cycle of the thinning where arms touch) are one place."""
+    place = {node: node for node in graph.kind}
+
+    def root(node: int) -> int:
+        while place[node] != node:
+            node = place[node]
+        return node
+
+    for branch in graph.branches:
+        kinds = (graph.kind[branch.a], graph.kind[branch.b])
+        if branch.length < spur and "end" not in kinds and "rim" not in kinds:
+            place[root(branch.a)] = root(branch.b)
+    return {node: root(node) for node in graph.kind}
+
+
+def _along_mask(mask: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """The point ((2,) float64 (u, v)) of the segment from ``start`` towards ``stop`` up to
+    which the segment runs on ``mask`` ((H, W) bool; samples every 0.5 px, each on it where
+    its pixel is): the cut tip is not moved across a gap onto an arm beside it."""
+    length = float(np.hypot(*(stop - start)))
+    if length < 0.5:
+        return stop
+    at = np.arange(0.5, length + 0.25, 0.5) / length
+    points = np.rint(start + at[:, None] * (stop - start)).astype(int)
+    height, width = mask.shape
+    inside = (points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0) & (points[:, 1] < height)
+    on = np.zeros(len(at), dtype=bool)
+    on[inside] = mask[points[inside, 1], points[inside, 0]] > 0
+    off = np.flatnonzero(~on)
+    if not len(off):
+        return stop
+    reach = 0.0 if off[0] == 0 else at[off[0] - 1]
+    return start + reach * (stop - start)
 
 
 def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
@@ -520,14 +560,26 @@ def hook_walk(
     graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
     if graph is None:
         return None
-    for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
+    # Thinning shortens a free end: the walk turns at the mask's end, and starts there when the
+    # tip is a free end of the skeleton (one branch leaves it).
+    tip_branches = sum((b.a == graph.tip) + (b.b == graph.tip) for b in graph.branches)
+    for branch in graph.branches:
         for first, node in ((True, branch.a), (False, branch.b)):
-            if graph.kind[node] != "end" or branch.length < spur:
+            at_tip = node == graph.tip and tip_branches == 1
+            if (graph.kind[node] != "end" and not at_tip) or branch.length < spur:
                 continue
             end = branch.pixels[0] if first else branch.pixels[-1]
-            outer = extend_to_end(own, end.astype(np.float64), step)
+            axis = None
+            if at_tip:  # outward along the branch; the cut tip's end may be eaten back far
+                inner = _within(
+                    (branch.pixels if first else branch.pixels[::-1]).astype(np.float64), 0.0, 2 * step
+                )
+                axis = end - inner.mean(axis=0)
+            outer = extend_to_end(own, end.astype(np.float64), 2 * step if at_tip else step, axis)
+            if at_tip:
+                outer = _along_mask(own, end.astype(np.float64), outer)
             u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
-            if rim[v, u]:  # the thread cut by the window's edge, slanting: its skeleton stops short
+            if rim[v, u] and not at_tip:  # the thread cut by the window's edge, slanting
                 graph.kind[node] = "rim"
             reach = float(np.hypot(*(outer - end)))
             if reach >= 1.0:
@@ -559,7 +611,8 @@ def hook_walk(
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
-    revisits = len(set(nodes)) < len(nodes)
+    places = _places(graph, spur)
+    revisits = len({places[n] for n in nodes}) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")

@@ -41,7 +41,9 @@ def free_ends(mask: np.ndarray) -> np.ndarray:
     return np.column_stack([u, v])
 
 
-def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
+def extend_to_end(
+    mask: np.ndarray, end: np.ndarray, radius: float, axis: np.ndarray | None = None
+) -> np.ndarray:
     """Move a skeleton end point to the end of the mask along the thread's direction.
 
     Thinning shortens a thread's end by up to its width (more on diagonal threads: 7 px on a
@@ -53,7 +55,10 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     rounded end of a thread lies that far beyond its centreline's end). The width is the mask
     area between radius/2 and radius from ``end``, on the inner side, divided by radius/2. (The
     mask pixels alone cannot give the axis: when the skeleton is that short, they lie on both
-    sides of ``end``.)
+    sides of ``end``.) ``axis``: the outward direction ((2,) float, (u, v)) when the caller
+    knows it from a skeleton of its own; the window's skeleton gives none where thinning
+    has eaten the end back by more than ``radius`` (a 2 px thread on the diagonal), since the
+    thread then runs on past ``end`` on both sides.
     """
     r = int(np.ceil(radius))
     u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
@@ -63,10 +68,12 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     if own == 0:  # not on the mask
         return np.asarray(end, dtype=np.float64)
     thread = pieces == own  # not another thread passing through the window
-    rows, cols = np.nonzero(skeletonize(thread))
-    inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
-    inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
-    axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
+    if axis is None:
+        rows, cols = np.nonzero(skeletonize(thread))
+        inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
+        inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
+        axis = -inward.mean(axis=0) if len(inward) else np.zeros(2)
+    axis = np.array(axis, dtype=np.float64)
     norm = float(np.hypot(*axis))
     if norm < 1e-6:
         return np.asarray(end, dtype=np.float64)
