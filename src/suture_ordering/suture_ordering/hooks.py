@@ -818,7 +818,40 @@ def stereo_tip(
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
     if score[y, x] < 1.0:
         return None
-    return np.asarray(left_tip, dtype=np.float64) + np.array([x + iu0 - tu0, y + iv0 - tv0], dtype=np.float64)
+    shift = _refined_shift(left, right, (u, v), (x + iu0 - tu0, y + iv0 - tv0), scaled.roi_radius)
+    return np.asarray(left_tip, dtype=np.float64) + np.asarray(shift, dtype=np.float64)
+
+
+def _refined_shift(
+    left: np.ndarray, right: np.ndarray, tip: tuple[int, int], shift: tuple[int, int], radius: int
+) -> tuple[int, int]:
+    """The shift (du, 0) px along the row that lays the left mask's pixels within ``radius`` px
+    (one RoI radius) of ``tip`` (u, v) best onto the right mask, within ``radius / 2`` px plus
+    the row offset of ``shift`` (du, dv), the hook window's best shift: the thread's depth
+    changes along it, so the window's shift suits the thread there as a whole rather than its
+    tip; and a thread slanting across the rows matches nearly as well shifted along itself,
+    so the window's shift may have traded a column for a row, which the rectified pair's rows
+    do not. Of equal overlaps the one nearest ``shift``; ``shift`` where the tip's
+    neighbourhood overlaps nothing."""
+    height, width = left.shape
+    u, v = tip
+    reach = max(1, radius // 2) + abs(int(shift[1]))
+    tu0, tu1 = max(0, u - radius), min(width, u + radius + 1)
+    tv0, tv1 = max(0, v - radius), min(height, v + radius + 1)
+    iu0, iu1 = tu0 + shift[0] - reach, tu1 + shift[0] + reach
+    if iu0 < 0 or iu1 > width:
+        return shift
+    template = np.asarray(left[tv0:tv1, tu0:tu1], dtype=np.float32)
+    if not template.any():
+        return shift
+    image = np.asarray(right[tv0:tv1, iu0:iu1], dtype=np.float32)
+    score = cv2.matchTemplate(image, template, cv2.TM_CCORR)[0]
+    du = np.arange(len(score)) - reach
+    score = score - 1e-3 * np.abs(du)
+    best = int(np.argmax(score))
+    if score[best] < 1.0:
+        return shift
+    return int(shift[0] + du[best]), 0
 
 
 def on_mask(mask: np.ndarray, point: np.ndarray, radius: float = 1.5) -> bool:
