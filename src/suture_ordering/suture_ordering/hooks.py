@@ -306,6 +306,31 @@ def _along_mask(mask: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.nda
     return start + reach * (stop - start)
 
 
+def _to_tip(mask: np.ndarray, path: np.ndarray, hint: np.ndarray, step: float, half: float) -> np.ndarray:
+    """``path`` ((N, 2) float64 (u, v), from the tip) with its start moved back along its own
+    direction (from the mean of its first ``2 step`` px to its first point) as far as that
+    line stays on ``mask`` (:func:`_along_mask`, at most ``2 step``) less ``half`` (px, the
+    thread's half width less half a pixel: a thread's rounded end lies that far beyond its
+    centreline's), and not past the foot of ``hint`` (the tip's pixel, (2,)) on the line.
+    Where the tip lies inside a stroke of merged arms, the walk starts at the skeleton's pixel
+    nearest the hint, short of the tip arm's end; the hint, a pixel at the cut end, bounds how
+    far the start may move along a thread that runs on past the tip beside its arm."""
+    axis = path[0] - _within(path, 0.0, 2 * step).mean(axis=0)
+    norm = float(np.hypot(*axis))
+    if norm < 1e-6:
+        return path
+    axis /= norm
+    limit = float((hint - path[0]) @ axis)
+    if limit < 1.0:
+        return path
+    outer = _along_mask(mask, path[0], path[0] + 2 * step * axis)
+    reach = min(float((outer - path[0]) @ axis) - half, limit)
+    if reach < 1.0:
+        return path
+    extra = path[0] + np.arange(math.floor(reach), 0, -1)[:, None] * axis
+    return np.vstack([extra, path])
+
+
 def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
     """The pixels of each of ``walk``'s branch passes, in its direction; a pixel shared with the
     previous pass is left out, so that the pieces stacked are the walk's pixels."""
@@ -610,6 +635,10 @@ def hook_walk(
         best = min(agreeing, key=lambda k: scored[k][0])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
+    if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
+        tail = np.rint(path[-max(2, len(path) // 3) :]).astype(int)
+        half = max(0.0, float(np.median(depth[tail[:, 1], tail[:, 0]])) - 0.5)
+        path = _to_tip(own, path, np.asarray(tip, dtype=np.float64) - (u0, v0), step, half)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
     places = _places(graph, spur)
     revisits = len({places[n] for n in nodes}) < len(nodes)

@@ -683,6 +683,14 @@ def test_a_tip_arm_that_thinning_ate_back_is_walked_from_the_masks_end():
     check_stored_stereo_frame("hooked_tip_arm_thinned_back.npz", coverage=0.9)
 
 
+def test_a_tip_inside_merged_arms_is_walked_from_its_arms_end():
+    """A simulator frame (hooked, 640x480, true masks): the tip arm and the returning arm merge
+    into one stroke and the tip arm ends 4 px past the stroke skeleton's pixel nearest the
+    hint; the walk started at that pixel and the tip check refused the frame. The start now
+    moves back along the walk onto the tip arm's end, no farther than the hint."""
+    check_stored_stereo_frame("hooked_tip_inside_merged_arms_short_of_the_arms_end.npz", coverage=0.9)
+
+
 def test_the_walks_start_is_not_moved_onto_the_returning_arm_beside_the_tip():
     """A simulator frame (hooked, 640x480, true masks): the returning arm passes a pixel beside
     the tip's end; moved out along the tip arm, the start must stop where the tip arm's mask
