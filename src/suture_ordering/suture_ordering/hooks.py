@@ -231,11 +231,14 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
         incident.setdefault(branch.a, []).append((k, False))
         incident.setdefault(branch.b, []).append((k, True))
     kinds = [(graph.kind[b.a], graph.kind[b.b]) for b in branches]
+    # Optional: branches to the rim, spurs of the thinning (short, to a free end other than the
+    # tip's), and short branches between two junctions or a junction and the tip (the little
+    # cycles that thinning leaves where arms touch diagonally).
     required = [
         k
         for k, b in enumerate(branches)
         if "rim" not in kinds[k]
-        and not ("end" in kinds[k] and b.length < spur and graph.tip not in (b.a, b.b))
+        and not (b.length < spur and ("end" not in kinds[k] or graph.tip not in (b.a, b.b)))
     ]
     found: list[list[tuple[int, bool]]] = []
     uses = [0] * len(branches)
@@ -264,6 +267,68 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
 
     extend(graph.tip, [])
     return found
+
+
+def _places(graph: _Graph, spur: float) -> dict[int, int]:
+    """Each node's place: nodes joined by a branch shorter than ``spur`` px between junctions
+    or the tip (a little cycle of the thinning where arms touch) are one place."""
+    place = {node: node for node in graph.kind}
+
+    def root(node: int) -> int:
+        while place[node] != node:
+            node = place[node]
+        return node
+
+    for branch in graph.branches:
+        kinds = (graph.kind[branch.a], graph.kind[branch.b])
+        if branch.length < spur and "end" not in kinds and "rim" not in kinds:
+            place[root(branch.a)] = root(branch.b)
+    return {node: root(node) for node in graph.kind}
+
+
+def _along_mask(mask: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """The point ((2,) float64 (u, v)) of the segment from ``start`` towards ``stop`` up to
+    which the segment runs on ``mask`` ((H, W) bool; samples every 0.5 px, each on it where
+    its pixel is): the cut tip is not moved across a gap onto an arm beside it."""
+    length = float(np.hypot(*(stop - start)))
+    if length < 0.5:
+        return stop
+    at = np.arange(0.5, length + 0.25, 0.5) / length
+    points = np.rint(start + at[:, None] * (stop - start)).astype(int)
+    height, width = mask.shape
+    inside = (points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0) & (points[:, 1] < height)
+    on = np.zeros(len(at), dtype=bool)
+    on[inside] = mask[points[inside, 1], points[inside, 0]] > 0
+    off = np.flatnonzero(~on)
+    if not len(off):
+        return stop
+    reach = 0.0 if off[0] == 0 else at[off[0] - 1]
+    return start + reach * (stop - start)
+
+
+def _to_tip(mask: np.ndarray, path: np.ndarray, hint: np.ndarray, step: float, half: float) -> np.ndarray:
+    """``path`` ((N, 2) float64 (u, v), from the tip) with its start moved back along its own
+    direction (from the mean of its first ``2 step`` px to its first point) as far as that
+    line stays on ``mask`` (:func:`_along_mask`, at most ``2 step``) less ``half`` (px, the
+    thread's half width less half a pixel: a thread's rounded end lies that far beyond its
+    centreline's), and not past the foot of ``hint`` (the tip's pixel, (2,)) on the line.
+    Where the tip lies inside a stroke of merged arms, the walk starts at the skeleton's pixel
+    nearest the hint, short of the tip arm's end; the hint, a pixel at the cut end, bounds how
+    far the start may move along a thread that runs on past the tip beside its arm."""
+    axis = path[0] - _within(path, 0.0, 2 * step).mean(axis=0)
+    norm = float(np.hypot(*axis))
+    if norm < 1e-6:
+        return path
+    axis /= norm
+    limit = float((hint - path[0]) @ axis)
+    if limit < 1.0:
+        return path
+    outer = _along_mask(mask, path[0], path[0] + 2 * step * axis)
+    reach = min(float((outer - path[0]) @ axis) - half, limit)
+    if reach < 1.0:
+        return path
+    extra = path[0] + np.arange(math.floor(reach), 0, -1)[:, None] * axis
+    return np.vstack([extra, path])
 
 
 def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
@@ -520,14 +585,26 @@ def hook_walk(
     graph = _skeleton_graph(skeleton, np.array([su[start], sv[start]]), rim)
     if graph is None:
         return None
-    for branch in graph.branches:  # thinning shortens a free end: the walk turns at the mask's
+    # Thinning shortens a free end: the walk turns at the mask's end, and starts there when the
+    # tip is a free end of the skeleton (one branch leaves it).
+    tip_branches = sum((b.a == graph.tip) + (b.b == graph.tip) for b in graph.branches)
+    for branch in graph.branches:
         for first, node in ((True, branch.a), (False, branch.b)):
-            if graph.kind[node] != "end" or branch.length < spur:
+            at_tip = node == graph.tip and tip_branches == 1
+            if (graph.kind[node] != "end" and not at_tip) or branch.length < spur:
                 continue
             end = branch.pixels[0] if first else branch.pixels[-1]
-            outer = extend_to_end(own, end.astype(np.float64), step)
+            axis = None
+            if at_tip:  # outward along the branch; the cut tip's end may be eaten back far
+                inner = _within(
+                    (branch.pixels if first else branch.pixels[::-1]).astype(np.float64), 0.0, 2 * step
+                )
+                axis = end - inner.mean(axis=0)
+            outer = extend_to_end(own, end.astype(np.float64), 2 * step if at_tip else step, axis)
+            if at_tip:
+                outer = _along_mask(own, end.astype(np.float64), outer)
             u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
-            if rim[v, u]:  # the thread cut by the window's edge, slanting: its skeleton stops short
+            if rim[v, u] and not at_tip:  # the thread cut by the window's edge, slanting
                 graph.kind[node] = "rim"
             reach = float(np.hypot(*(outer - end)))
             if reach >= 1.0:
@@ -558,8 +635,13 @@ def hook_walk(
         best = min(agreeing, key=lambda k: scored[k][0])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
+    if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
+        tail = np.rint(path[-max(2, len(path) // 3) :]).astype(int)
+        half = max(0.0, float(np.median(depth[tail[:, 1], tail[:, 0]])) - 0.5)
+        path = _to_tip(own, path, np.asarray(tip, dtype=np.float64) - (u0, v0), step, half)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
-    revisits = len(set(nodes)) < len(nodes)
+    places = _places(graph, spur)
+    revisits = len({places[n] for n in nodes}) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
@@ -765,7 +847,40 @@ def stereo_tip(
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
     if score[y, x] < 1.0:
         return None
-    return np.asarray(left_tip, dtype=np.float64) + np.array([x + iu0 - tu0, y + iv0 - tv0], dtype=np.float64)
+    shift = _refined_shift(left, right, (u, v), (x + iu0 - tu0, y + iv0 - tv0), scaled.roi_radius)
+    return np.asarray(left_tip, dtype=np.float64) + np.asarray(shift, dtype=np.float64)
+
+
+def _refined_shift(
+    left: np.ndarray, right: np.ndarray, tip: tuple[int, int], shift: tuple[int, int], radius: int
+) -> tuple[int, int]:
+    """The shift (du, 0) px along the row that lays the left mask's pixels within ``radius`` px
+    (one RoI radius) of ``tip`` (u, v) best onto the right mask, within ``radius / 2`` px plus
+    the row offset of ``shift`` (du, dv), the hook window's best shift: the thread's depth
+    changes along it, so the window's shift suits the thread there as a whole rather than its
+    tip; and a thread slanting across the rows matches nearly as well shifted along itself,
+    so the window's shift may have traded a column for a row, which the rectified pair's rows
+    do not. Of equal overlaps the one nearest ``shift``; ``shift`` where the tip's
+    neighbourhood overlaps nothing."""
+    height, width = left.shape
+    u, v = tip
+    reach = max(1, radius // 2) + abs(int(shift[1]))
+    tu0, tu1 = max(0, u - radius), min(width, u + radius + 1)
+    tv0, tv1 = max(0, v - radius), min(height, v + radius + 1)
+    iu0, iu1 = tu0 + shift[0] - reach, tu1 + shift[0] + reach
+    if iu0 < 0 or iu1 > width:
+        return shift
+    template = np.asarray(left[tv0:tv1, tu0:tu1], dtype=np.float32)
+    if not template.any():
+        return shift
+    image = np.asarray(right[tv0:tv1, iu0:iu1], dtype=np.float32)
+    score = cv2.matchTemplate(image, template, cv2.TM_CCORR)[0]
+    du = np.arange(len(score)) - reach
+    score = score - 1e-3 * np.abs(du)
+    best = int(np.argmax(score))
+    if score[best] < 1.0:
+        return shift
+    return int(shift[0] + du[best]), 0
 
 
 def on_mask(mask: np.ndarray, point: np.ndarray, radius: float = 1.5) -> bool:

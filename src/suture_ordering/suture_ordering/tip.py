@@ -45,7 +45,9 @@ def free_ends(mask: np.ndarray) -> np.ndarray:
     return np.column_stack([u, v])
 
 
-def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
+def extend_to_end(
+    mask: np.ndarray, end: np.ndarray, radius: float, axis: np.ndarray | None = None
+) -> np.ndarray:
     """Move a skeleton end point to the end of the mask along the thread's direction.
 
     Thinning shortens a thread's end by up to its width (more on diagonal threads: 7 px on a
@@ -57,12 +59,24 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     rounded end of a thread lies that far beyond its centreline's end). The width is the mask
     area between radius/2 and radius from ``end``, on the inner side, divided by radius/2. (The
     mask pixels alone cannot give the axis: when the skeleton is that short, they lie on both
-    sides of ``end``.)
+    sides of ``end``.) ``axis``: the outward direction ((2,) float, (u, v)) when the caller
+    knows it from a skeleton of its own; the window's skeleton gives none where thinning
+    has eaten the end back by more than ``radius`` (a 2 px thread on the diagonal), since the
+    thread then runs on past ``end`` on both sides.
     """
-    found = _outward_axis(mask, end, radius)
-    if found is None:
-        return np.asarray(end, dtype=np.float64)
-    axis, thread, u0, v0 = found
+    if axis is None:
+        found = _outward_axis(mask, end, radius)
+        if found is None:
+            return np.asarray(end, dtype=np.float64)
+        axis, thread, u0, v0 = found
+    else:
+        own = _own_thread(mask, end, radius)
+        axis = np.array(axis, dtype=np.float64)
+        norm = float(np.hypot(*axis))
+        if own is None or norm < 1e-6:
+            return np.asarray(end, dtype=np.float64)
+        thread, u0, v0 = own
+        axis /= norm
     rows, cols = np.nonzero(thread)
     offset = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
     distance = np.hypot(offset[:, 0], offset[:, 1])
@@ -78,20 +92,27 @@ def extend_to_end(mask: np.ndarray, end: np.ndarray, radius: float) -> np.ndarra
     return np.asarray(end, dtype=np.float64) + offset[best] - back * axis
 
 
-def _outward_axis(
-    mask: np.ndarray, end: np.ndarray, radius: float
-) -> tuple[np.ndarray, np.ndarray, int, int] | None:
-    """The unit direction in which the thread leaves the skeleton end ``end`` (from the mean of
-    its skeleton pixels within ``radius`` to ``end``), the thread's own pixels in the window
-    around ``end`` ((h, w) bool) and the window's (u0, v0); None off the mask or on a dot."""
+def _own_thread(mask: np.ndarray, end: np.ndarray, radius: float) -> tuple[np.ndarray, int, int] | None:
+    """The mask pixels connected to ``end`` in the window of ``radius`` around it ((h, w) bool:
+    not another thread passing through the window) and the window's (u0, v0); None off the mask."""
     r = int(np.ceil(radius))
     u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
     window = np.asarray(mask[v0 : int(end[1]) + r + 1, u0 : int(end[0]) + r + 1], dtype=np.uint8)
     _, pieces = cv2.connectedComponents(window, connectivity=8)
     own = pieces[int(end[1]) - v0, int(end[0]) - u0]
-    if own == 0:  # not on the mask
+    return None if own == 0 else (pieces == own, u0, v0)
+
+
+def _outward_axis(
+    mask: np.ndarray, end: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, int, int] | None:
+    """The unit direction in which the thread leaves the skeleton end ``end`` (from the mean of
+    its skeleton pixels within ``radius`` to ``end``), and :func:`_own_thread`'s pixels and
+    window corner; None off the mask or on a dot."""
+    own = _own_thread(mask, end, radius)
+    if own is None:
         return None
-    thread = pieces == own  # not another thread passing through the window
+    thread, u0, v0 = own
     rows, cols = np.nonzero(skeletonize(thread))
     inward = np.column_stack((cols + u0 - end[0], rows + v0 - end[1]))
     inward = inward[np.hypot(inward[:, 0], inward[:, 1]) <= radius]
