@@ -75,9 +75,11 @@ NOT_SEEN_ARC_FACTOR = 0.15
 UNSUPPORTED_ROW_DEG = 5.0
 #: Arc (m) either side of the grasp point over which its conditioning and seen state are read.
 GRASP_WINDOW_M = 0.003
-#: Samples of the left sequence within this distance (px) of the nearest one to the 3D thread's
-#: projected start count as its place; the earliest of them gives the arc missing at the tip.
-TIP_MATCH_PX = 1.0
+#: Samples of the left sequence within this distance (px) beyond the nearest one to the 3D thread's
+#: projected start count as its place; the earliest of them gives the arc missing at the tip (in a
+#: hook at the tip a later pass of the sequence may lie nearer than the tip, which the curve's
+#: smoothing of the tight bend leaves 1-3 px off).
+TIP_MATCH_PX = 3.0
 #: Spacing (m) of the curve samples the assessment projects into the views.
 SAMPLE_STEP_M = 0.0005
 
@@ -260,8 +262,9 @@ def refuse_uncertain_grasp(
 def tip_gap_mm(curve: ArcLengthCurve, left: Resampled, camera: StereoCamera) -> float:
     """Image arc (mm at the curve's start depth) of the left sequence before the reconstructed
     thread's start: the curve's first point projected into the left view, the first sample of
-    the left sequence within :data:`TIP_MATCH_PX` of its nearest one (the earliest pass, where a
-    hook's arms touch near the tip) and that sample's arc length from the cut tip (px), times Z / fx.
+    the left sequence within :data:`TIP_MATCH_PX` of the distance of its nearest one (the earliest
+    pass, where a hook's arms touch near the tip) and that sample's arc length from the cut tip
+    (px), times Z / fx.
 
     ``left``: the left sequence smoothed and resampled every 1 px (its ``arc`` in px). A lower
     bound of the 3D arc missing at the tip (foreshortening only hides more).

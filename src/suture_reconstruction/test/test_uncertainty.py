@@ -186,3 +186,30 @@ def test_an_unsupported_depth_change_before_the_grasp_point_refuses_it(make_scen
     strict = ReconstructionParams(max_grasp_uncertainty_mm=0.9 * assessed.unsupported_depth_mm)
     with pytest.raises(UncertainGraspError, match="depth changes along a stretch parallel"):
         reconstruct(left, right, camera, strict)
+
+
+def test_the_tip_gap_counts_from_the_earliest_pass_near_the_start():
+    from types import SimpleNamespace
+
+    from suture_reconstruction.sequences import Resampled
+    from suture_reconstruction.uncertainty import tip_gap_mm
+
+    camera = StereoCamera.default(640, 480)
+    # A hairpin at the tip: 40 px to the right along row 200, back along row 202 past the tip.
+    out = np.column_stack([np.arange(100.0, 140.0), np.full(40, 200.0)])
+    back = np.column_stack([np.arange(140.0, 60.0, -1.0), np.full(80, 202.0)])
+    points = np.vstack([out, back])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    left = Resampled(points, arc, np.ones(len(points), dtype=bool))
+
+    def curve_from(uv):
+        """A stand-in for the 3D curve: its start 100 mm away on the left pixel ``uv``."""
+        start = np.array([(uv[0] - camera.cx) * 0.1 / camera.fx, (uv[1] - camera.cy) * 0.1 / camera.fy, 0.1])
+        return SimpleNamespace(at=lambda s: start)
+
+    # The 3D start 1.8 px off the tip, nearer to the returning arm: no gap.
+    assert tip_gap_mm(curve_from((100.5, 201.8)), left, camera) == 0.0
+    # The 3D start 30 px along the first arm: 30 px at 100 mm is about 5.8 mm of arc missing.
+    assert tip_gap_mm(curve_from((130.0, 200.0)), left, camera) == pytest.approx(
+        30 * 100 / camera.fx, abs=0.7
+    )
