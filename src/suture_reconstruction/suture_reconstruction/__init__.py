@@ -14,6 +14,7 @@ from suture_reconstruction.errors import (
     NoStereoOverlapError,
     ReconstructionError,
     ThreadTooShortError,
+    TipNotReconstructedError,
     TooFewPointsError,
     UncertainGraspError,
 )
@@ -38,6 +39,7 @@ __all__ = [
     "SelectionCosts",
     "ShapeGraphParams",
     "ThreadTooShortError",
+    "TipNotReconstructedError",
     "TooFewPointsError",
     "UncertainGraspError",
     "reconstruct",

@@ -34,14 +34,16 @@ both call. Steps (paper Section II.B end and II.C):
    length (:mod:`suture_reconstruction.curve`): ``path`` every ``path_step``
    and ``length``;
 6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``), and its
-   uncertainty (:mod:`suture_reconstruction.uncertainty`): a grasp point a view does not see,
-   or one uncertain by more than ``max_grasp_uncertainty_mm``, is refused.
+   uncertainty (:mod:`suture_reconstruction.uncertainty`): a thread whose reconstruction starts
+   more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, or one
+   uncertain by more than ``max_grasp_uncertainty_mm``, is refused.
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera; GraspNotSeenError and UncertainGraspError for a grasp point that is not trusted)
+camera; TipNotReconstructedError, GraspNotSeenError and UncertainGraspError for a grasp point
+that is not trusted)
 and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
 
@@ -72,7 +74,13 @@ from suture_reconstruction.photometric import PhotometricParams, check_image_pai
 from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
-from suture_reconstruction.uncertainty import GraspUncertainty, assess_grasp, refuse_uncertain_grasp
+from suture_reconstruction.uncertainty import (
+    GraspUncertainty,
+    assess_grasp,
+    refuse_late_start,
+    refuse_uncertain_grasp,
+    tip_gap_mm,
+)
 
 
 @dataclass(frozen=True)
@@ -95,7 +103,8 @@ class ReconstructionParams:
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
     ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
-    ``refuse_unseen_grasp`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
+    ``refuse_unseen_grasp``, ``max_tip_gap_mm`` (the refusals of
+    :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
     """
@@ -154,6 +163,15 @@ class ReconstructionParams:
         default=True,
         metadata=described("refuse a grasp point that a view does not see (GraspNotSeenError)"),
     )
+    max_tip_gap_mm: float = field(
+        default=3.0,
+        metadata=described(
+            "largest arc (mm) next to the cut tip that may be missing from the reconstructed thread; "
+            "a thread that starts later is refused (TipNotReconstructedError), since the grasp point "
+            "is placed by arc length from the tip",
+            (0.0, 1000.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -162,6 +180,8 @@ class ReconstructionParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
+        if not self.max_tip_gap_mm > 0:
+            raise ValueError(f"max_tip_gap_mm must be positive, got {self.max_tip_gap_mm}")
         if not self.max_grasp_uncertainty_mm > 0:
             raise ValueError(
                 f"max_grasp_uncertainty_mm must be positive, got {self.max_grasp_uncertainty_mm}"
@@ -303,6 +323,9 @@ def reconstruct(
         Fewer than ``params.min_pairs`` left samples pair with the right sequence.
     ThreadTooShortError
         The reconstructed thread is shorter than ``params.grasp_arc_length``.
+    TipNotReconstructedError
+        The reconstructed thread starts more than ``params.max_tip_gap_mm`` of arc after the
+        cut tip (the grasp point would be counted from a later point).
     ImagePairError
         ``images`` that do not fit the camera.
     GraspNotSeenError
@@ -364,6 +387,7 @@ def reconstruct(
     curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
+    refuse_late_start(tip_gap_mm(curve, left, camera), params.max_tip_gap_mm)
     timer.lap("curve_and_grasp")
     uncertainty, path_not_seen = assess_grasp(curve, path, camera, (left, right), params.grasp_arc_length)
     refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)

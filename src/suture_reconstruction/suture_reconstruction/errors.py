@@ -31,6 +31,11 @@ class ThreadTooShortError(ReconstructionError):
     """The reconstructed thread is shorter than the reserved grasp arc length."""
 
 
+class TipNotReconstructedError(ReconstructionError):
+    """The reconstructed thread does not start at the cut tip: the stretch next to the tip had no
+    stereo support, so the arc length to the grasp point would be counted from a later point."""
+
+
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""

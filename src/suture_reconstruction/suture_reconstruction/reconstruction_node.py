@@ -34,8 +34,10 @@ cannot be reconstructed (too few points, no stereo overlap, thread shorter than
 the reserve, NaN, missing or unusable camera_info) is dropped with one warning
 per reason and ``log_throttle`` seconds, and the node serves the next one. So is a
 frame whose grasp point is refused (:mod:`suture_reconstruction.uncertainty`): a
-grasp point a view does not see (GraspNotSeenError) or one uncertain by more than
-``max_grasp_uncertainty_mm`` (UncertainGraspError); nothing of it is published.
+grasp point a view does not see (GraspNotSeenError), one uncertain by more than
+``max_grasp_uncertainty_mm`` (UncertainGraspError), or one on a thread whose reconstruction
+starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError); nothing of it
+is published.
 """
 
 from __future__ import annotations
@@ -98,6 +100,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "grasp_arc_length"),
     (ReconstructionParams, "max_grasp_uncertainty_mm"),
     (ReconstructionParams, "refuse_unseen_grasp"),
+    (ReconstructionParams, "max_tip_gap_mm"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),

@@ -30,6 +30,12 @@ thread between the cut tip and the grasp point, four terms added in quadrature:
 A point of the 3D path is seen in a view when the nearest sample of that view's sequence
 (resampled every 1 px, a jump across a hidden stretch filled with unseen samples) is a seen one.
 
+:func:`refuse_late_start` raises :class:`~suture_reconstruction.errors.TipNotReconstructedError`
+when the 3D thread starts after the cut tip: the grasp point is placed by arc length from the
+tip, so every millimetre of the tip's stretch missing from the reconstruction (no stereo support
+there, e.g. a stretch along the image rows whose tip pair was not usable) moves the grasp point
+along the thread by as much, and none of the terms above sees it.
+
 :func:`refuse_uncertain_grasp` raises :class:`~suture_reconstruction.errors.GraspNotSeenError`
 when the grasp point lies on a stretch that a view does not see (no observation supports it
 in that view; the evaluation contract counts such a refusal as a success where the true grasp
@@ -53,7 +59,7 @@ from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
-from suture_reconstruction.errors import GraspNotSeenError, UncertainGraspError
+from suture_reconstruction.errors import GraspNotSeenError, TipNotReconstructedError, UncertainGraspError
 from suture_reconstruction.sequences import Resampled
 
 #: Row error (px) of a stereo pair of the traced sequences; its disparity error is this / sin(a).
@@ -69,6 +75,11 @@ NOT_SEEN_ARC_FACTOR = 0.15
 UNSUPPORTED_ROW_DEG = 5.0
 #: Arc (m) either side of the grasp point over which its conditioning and seen state are read.
 GRASP_WINDOW_M = 0.003
+#: Samples of the left sequence within this distance (px) beyond the nearest one to the 3D thread's
+#: projected start count as its place; the earliest of them gives the arc missing at the tip (in a
+#: hook at the tip a later pass of the sequence may lie nearer than the tip, which the curve's
+#: smoothing of the tight bend leaves 1-3 px off).
+TIP_MATCH_PX = 3.0
 #: Spacing (m) of the curve samples the assessment projects into the views.
 SAMPLE_STEP_M = 0.0005
 
@@ -245,4 +256,33 @@ def refuse_uncertain_grasp(
             f"grasp point uncertain by {uncertainty.total_mm:.1f} mm, more than max_grasp_uncertainty_mm "
             f"{max_uncertainty_mm:g}: {uncertainty.describe()}; {terms[largest]}",
             uncertainty,
+        )
+
+
+def tip_gap_mm(curve: ArcLengthCurve, left: Resampled, camera: StereoCamera) -> float:
+    """Image arc (mm at the curve's start depth) of the left sequence before the reconstructed
+    thread's start: the curve's first point projected into the left view, the first sample of
+    the left sequence within :data:`TIP_MATCH_PX` of the distance of its nearest one (the earliest
+    pass, where a hook's arms touch near the tip) and that sample's arc length from the cut tip
+    (px), times Z / fx.
+
+    ``left``: the left sequence smoothed and resampled every 1 px (its ``arc`` in px). A lower
+    bound of the 3D arc missing at the tip (foreshortening only hides more).
+    """
+    start = curve.at(0.0)
+    uv = camera.project(start[None], "left")[0]
+    distance = np.linalg.norm(left.points[:, :2] - uv, axis=1)
+    first = int(np.argmax(distance <= distance.min() + TIP_MATCH_PX))
+    return float(1000 * left.arc[first] * start[2] / camera.fx)
+
+
+def refuse_late_start(gap_mm: float, max_gap_mm: float) -> None:
+    """Raise TipNotReconstructedError when ``gap_mm`` (:func:`tip_gap_mm`) exceeds ``max_gap_mm``."""
+    if gap_mm > max_gap_mm:
+        raise TipNotReconstructedError(
+            f"the reconstructed thread starts {gap_mm:.1f} mm of arc after the cut tip (more than "
+            f"max_tip_gap_mm {max_gap_mm:g}): the stretch at the tip has no stereo support (e.g. it runs "
+            "along the image rows and the two views' tips do not pair), so the grasp point, placed by arc "
+            "length from the tip, would be that much too far along the thread; turn the camera or the "
+            "thread so that the tip's stretch crosses the image rows, or check the right view's tip"
         )

@@ -10,6 +10,7 @@ from suture_common.camera import StereoCamera
 from suture_reconstruction import (
     GraspNotSeenError,
     ReconstructionParams,
+    TipNotReconstructedError,
     UncertainGraspError,
     reconstruct,
 )
@@ -117,6 +118,42 @@ def test_a_gap_before_the_grasp_point_is_not_a_refusal(make_scene):
 def test_the_threshold_is_checked():
     with pytest.raises(ValueError, match="max_grasp_uncertainty_mm"):
         ReconstructionParams(max_grasp_uncertainty_mm=0.0)
+    with pytest.raises(ValueError, match="max_tip_gap_mm"):
+        ReconstructionParams(max_tip_gap_mm=0.0)
+
+
+def tip_along_the_rows(camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 90 mm thread 100 mm away whose first 30 mm run exactly along an image row, then bend
+    to 60 deg from the rows (m, every 0.05 mm), and its left and right sequences (every 1 px)."""
+    s = np.arange(0.0, 0.09, 5e-5)
+    heading = np.radians(60.0) * np.clip((s - 0.03) / 0.01, 0.0, 1.0)
+    xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * 5e-5, axis=0) - [0.04, 0.02]
+    curve = np.column_stack([xy, np.full(len(s), 0.1)])
+    sequences = []
+    for view in ("left", "right"):
+        uv = camera.project(curve, view)
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+        t = np.arange(0.0, arc[-1], 1.0)
+        sequences.append(np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])]))
+    return curve, sequences[0], sequences[1]
+
+
+def test_a_thread_whose_tip_stretch_has_no_stereo_support_is_refused():
+    camera = StereoCamera.default(640, 480)
+    curve, left, right = tip_along_the_rows(camera)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    true_grasp = curve[np.argmin(np.abs(arc - 0.05))]
+    # Both views' tips on one row: the tip pair carries the depth along the rows to the bend.
+    good = reconstruct(left, right, camera)
+    assert np.linalg.norm(good.grasp_position - true_grasp) < 0.001
+    # The right view's tip curls 4 px off the row (a small hook in its mask): no tip pair, and the
+    # 30 mm along the rows have no crossing to pair, so the 3D thread starts at the bend. Counted
+    # from there, the grasp point would lie about 20 mm too far along the thread.
+    right[:6, 1] -= 4.0
+    lenient = reconstruct(left, right, camera, ReconstructionParams(max_tip_gap_mm=1000.0))
+    assert np.linalg.norm(lenient.grasp_position - true_grasp) > 0.01
+    with pytest.raises(TipNotReconstructedError, match=r"starts 2\d\.\d mm of arc after the cut tip"):
+        reconstruct(left, right, camera)
 
 
 def test_a_depth_change_along_the_image_rows_counts_as_unsupported():
@@ -149,3 +186,30 @@ def test_an_unsupported_depth_change_before_the_grasp_point_refuses_it(make_scen
     strict = ReconstructionParams(max_grasp_uncertainty_mm=0.9 * assessed.unsupported_depth_mm)
     with pytest.raises(UncertainGraspError, match="depth changes along a stretch parallel"):
         reconstruct(left, right, camera, strict)
+
+
+def test_the_tip_gap_counts_from_the_earliest_pass_near_the_start():
+    from types import SimpleNamespace
+
+    from suture_reconstruction.sequences import Resampled
+    from suture_reconstruction.uncertainty import tip_gap_mm
+
+    camera = StereoCamera.default(640, 480)
+    # A hairpin at the tip: 40 px to the right along row 200, back along row 202 past the tip.
+    out = np.column_stack([np.arange(100.0, 140.0), np.full(40, 200.0)])
+    back = np.column_stack([np.arange(140.0, 60.0, -1.0), np.full(80, 202.0)])
+    points = np.vstack([out, back])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    left = Resampled(points, arc, np.ones(len(points), dtype=bool))
+
+    def curve_from(uv):
+        """A stand-in for the 3D curve: its start 100 mm away on the left pixel ``uv``."""
+        start = np.array([(uv[0] - camera.cx) * 0.1 / camera.fx, (uv[1] - camera.cy) * 0.1 / camera.fy, 0.1])
+        return SimpleNamespace(at=lambda s: start)
+
+    # The 3D start 1.8 px off the tip, nearer to the returning arm: no gap.
+    assert tip_gap_mm(curve_from((100.5, 201.8)), left, camera) == 0.0
+    # The 3D start 30 px along the first arm: 30 px at 100 mm is about 5.8 mm of arc missing.
+    assert tip_gap_mm(curve_from((130.0, 200.0)), left, camera) == pytest.approx(
+        30 * 100 / camera.fx, abs=0.7
+    )
