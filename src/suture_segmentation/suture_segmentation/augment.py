@@ -55,7 +55,7 @@ def make_augmenter(photometric: bool = True, geometric: bool = True) -> torch.nn
 
 
 def augment_batch(
-    augmenter: torch.nn.Module, images: np.ndarray, labels: np.ndarray
+    augmenter: torch.nn.Module, images: np.ndarray, labels: np.ndarray, device: str = "cpu"
 ) -> tuple[np.ndarray, np.ndarray]:
     """Apply ``augmenter`` to a training batch.
 
@@ -63,13 +63,15 @@ def augment_batch(
         augmenter: from :func:`make_augmenter`.
         images: (B, 3, H, W) float32 in [0, 1].
         labels: (B, H, W) int64 in {0, 1}.
+        device: where the warps and colour changes run ("cuda" when training there: on the CPU
+            they cost more than the training step itself).
 
     Returns:
         (B, 3, H, W) float32 images clipped to [0, 1] and (B, H, W) int64 labels, warped alike.
     """
     with torch.no_grad():
-        image_t = torch.from_numpy(np.ascontiguousarray(images))
-        mask_t = torch.from_numpy(np.ascontiguousarray(labels)).float()[:, None]
+        image_t = torch.from_numpy(np.ascontiguousarray(images)).to(device)
+        mask_t = torch.from_numpy(np.ascontiguousarray(labels)).to(device).float()[:, None]
         out_image, out_mask = augmenter(image_t, mask_t)
-    out_labels = (out_mask[:, 0] > 0.5).long().numpy()
-    return out_image.clamp_(0.0, 1.0).numpy().astype(np.float32, copy=False), out_labels
+    out_labels = (out_mask[:, 0] > 0.5).long().cpu().numpy()
+    return out_image.clamp_(0.0, 1.0).cpu().numpy().astype(np.float32, copy=False), out_labels

@@ -183,7 +183,7 @@ def train(
         for _ in bar:
             images, labels = sampler.batch(config.batch_size)
             if augmenter is not None:
-                images, labels = augment_batch(augmenter, images, labels)
+                images, labels = augment_batch(augmenter, images, labels, device)
             logits = model(torch.from_numpy(images).to(device))
             loss = segmentation_loss(logits, torch.from_numpy(labels).to(device), config.loss)
             optimiser.zero_grad(set_to_none=True)
