@@ -17,6 +17,7 @@ from suture_reconstruction.errors import (
     TipNotReconstructedError,
     TooFewPointsError,
     UncertainGraspError,
+    UnexplainedArcError,
 )
 from suture_reconstruction.pairing import DisparitySmoothing, PairingParams, SelectionCosts
 from suture_reconstruction.photometric import PhotometricParams
@@ -42,5 +43,6 @@ __all__ = [
     "TipNotReconstructedError",
     "TooFewPointsError",
     "UncertainGraspError",
+    "UnexplainedArcError",
     "reconstruct",
 ]

@@ -35,15 +35,16 @@ both call. Steps (paper Section II.B end and II.C):
    and ``length``;
 6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``), and its
    uncertainty (:mod:`suture_reconstruction.uncertainty`): a thread whose reconstruction starts
-   more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, or one
-   uncertain by more than ``max_grasp_uncertainty_mm``, is refused.
+   more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, one
+   uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
+   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, is refused.
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera; TipNotReconstructedError, GraspNotSeenError and UncertainGraspError for a grasp point
-that is not trusted)
+camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError and UnexplainedArcError
+for a grasp point that is not trusted)
 and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
 
@@ -79,7 +80,9 @@ from suture_reconstruction.uncertainty import (
     assess_grasp,
     refuse_late_start,
     refuse_uncertain_grasp,
+    refuse_unexplained_arc,
     tip_gap_mm,
+    unexplained_arc_mm,
 )
 
 
@@ -103,7 +106,7 @@ class ReconstructionParams:
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
     ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
-    ``refuse_unseen_grasp``, ``max_tip_gap_mm`` (the refusals of
+    ``refuse_unseen_grasp``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm`` (the refusals of
     :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
@@ -172,6 +175,15 @@ class ReconstructionParams:
             (0.0, 1000.0),
         ),
     )
+    max_unexplained_arc_mm: float = field(
+        default=5.0,
+        metadata=described(
+            "longest stretch (mm) of a view's seen sequence between the cut tip and the grasp point that "
+            "may lie off the reconstructed thread's projection; a longer one is thread the 3D thread does "
+            "not hold, which moves the grasp point along the thread by as much (UnexplainedArcError)",
+            (0.0, 1000.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -180,6 +192,8 @@ class ReconstructionParams:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
+        if not self.max_unexplained_arc_mm > 0:
+            raise ValueError(f"max_unexplained_arc_mm must be positive, got {self.max_unexplained_arc_mm}")
         if not self.max_tip_gap_mm > 0:
             raise ValueError(f"max_tip_gap_mm must be positive, got {self.max_tip_gap_mm}")
         if not self.max_grasp_uncertainty_mm > 0:
@@ -332,6 +346,9 @@ def reconstruct(
         The grasp point lies on a stretch a view does not see (``params.refuse_unseen_grasp``).
     UncertainGraspError
         The grasp point's uncertainty exceeds ``params.max_grasp_uncertainty_mm``.
+    UnexplainedArcError
+        A stretch longer than ``params.max_unexplained_arc_mm`` of a view's seen sequence between
+        the cut tip and the grasp point lies off the 3D thread's projection.
     ReconstructionError
         Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
         point (the base class of all the above; a ``ValueError``).
@@ -391,6 +408,8 @@ def reconstruct(
     timer.lap("curve_and_grasp")
     uncertainty, path_not_seen = assess_grasp(curve, path, camera, (left, right), params.grasp_arc_length)
     refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
+    unexplained, view = unexplained_arc_mm(curve, camera, (left, right), params.grasp_arc_length)
+    refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)
     timer.lap("uncertainty")
     return Reconstruction(
         points=triangulated.points,

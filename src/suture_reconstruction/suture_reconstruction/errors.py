@@ -36,6 +36,12 @@ class TipNotReconstructedError(ReconstructionError):
     stereo support, so the arc length to the grasp point would be counted from a later point."""
 
 
+class UnexplainedArcError(ReconstructionError):
+    """A stretch of a view's seen sequence between the cut tip and the grasp point lies off the
+    reconstructed thread's projection: thread that view saw there is missing from the 3D thread
+    (or the views followed different branches), so the grasp point is misplaced along the thread."""
+
+
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""

@@ -35,9 +35,10 @@ the reserve, NaN, missing or unusable camera_info) is dropped with one warning
 per reason and ``log_throttle`` seconds, and the node serves the next one. So is a
 frame whose grasp point is refused (:mod:`suture_reconstruction.uncertainty`): a
 grasp point a view does not see (GraspNotSeenError), one uncertain by more than
-``max_grasp_uncertainty_mm`` (UncertainGraspError), or one on a thread whose reconstruction
-starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError); nothing of it
-is published.
+``max_grasp_uncertainty_mm`` (UncertainGraspError), one on a thread whose reconstruction
+starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
+which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread
+does not explain (UnexplainedArcError); nothing of it is published.
 """
 
 from __future__ import annotations
@@ -101,6 +102,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "max_grasp_uncertainty_mm"),
     (ReconstructionParams, "refuse_unseen_grasp"),
     (ReconstructionParams, "max_tip_gap_mm"),
+    (ReconstructionParams, "max_unexplained_arc_mm"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),

@@ -46,6 +46,16 @@ predicted masks), where the terms rank the grasps that the views disagree on; a 
 both views' sequences cut across the same way leaves no trace in the stereo pair and is not
 caught here.
 
+:func:`unexplained_arc_mm` reads the converse of the disagreement term: every seen sample of
+either view's sequence between the cut tip and the grasp point is the image of some point of the
+thread there, so it must lie on the 3D thread's projection. A stretch of a view's sequence that
+lies off it (a hook or branch one view followed and the other cut across, a right-view stretch no
+left sample paired with) is thread whose arc the reconstruction does not hold, and the grasp point,
+placed by arc length from the tip, moves along the thread by about as much; the disagreement term
+does not see it, since the 3D thread still lies on both sequences. :func:`refuse_unexplained_arc`
+raises :class:`~suture_reconstruction.errors.UnexplainedArcError` when the longest such stretch
+exceeds ``max_unexplained_arc_mm``.
+
 Units: metres for 3D points and arc lengths, pixels in the images, millimetres for the
 uncertainty.
 """
@@ -59,7 +69,12 @@ from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
-from suture_reconstruction.errors import GraspNotSeenError, TipNotReconstructedError, UncertainGraspError
+from suture_reconstruction.errors import (
+    GraspNotSeenError,
+    TipNotReconstructedError,
+    UncertainGraspError,
+    UnexplainedArcError,
+)
 from suture_reconstruction.sequences import Resampled
 
 #: Row error (px) of a stereo pair of the traced sequences; its disparity error is this / sin(a).
@@ -80,6 +95,9 @@ GRASP_WINDOW_M = 0.003
 #: hook at the tip a later pass of the sequence may lie nearer than the tip, which the curve's
 #: smoothing of the tight bend leaves 1-3 px off).
 TIP_MATCH_PX = 3.0
+#: Distance (px) from the 3D thread's projection within which a seen sample of a sequence counts as
+#: explained by it (the curve's smoothing leaves tight bends 1-3 px off the traced centreline).
+EXPLAINED_PX = 3.0
 #: Spacing (m) of the curve samples the assessment projects into the views.
 SAMPLE_STEP_M = 0.0005
 
@@ -285,4 +303,77 @@ def refuse_late_start(gap_mm: float, max_gap_mm: float) -> None:
             "along the image rows and the two views' tips do not pair), so the grasp point, placed by arc "
             "length from the tip, would be that much too far along the thread; turn the camera or the "
             "thread so that the tip's stretch crosses the image rows, or check the right view's tip"
+        )
+
+
+def unexplained_arc_mm(
+    curve: ArcLengthCurve,
+    camera: StereoCamera,
+    resampled: tuple[Resampled, Resampled],
+    grasp_arc_length: float,
+) -> tuple[float, str]:
+    """The longest stretch (mm) of a view's seen sequence before the grasp point that the 3D thread
+    does not explain, and that view ('left' or 'right').
+
+    In each view: the sequence's samples from the cut tip to where it reaches the grasp point (the
+    earliest sample within :data:`TIP_MATCH_PX` of the distance of the nearest one to the projected
+    grasp point, as :func:`tip_gap_mm` finds the start); of them, the seen ones farther than
+    :data:`EXPLAINED_PX` from the projection of the 3D thread (tip to :data:`GRASP_WINDOW_M` past the
+    grasp point); the longest unbroken run of them (px of the sequence's arc) times Z / fx at the
+    grasp point. ``resampled``: the left and right sequences resampled every 1 px with their
+    ``observed`` flags (:func:`suture_reconstruction.not_seen.observed_samples`).
+    """
+    s = np.arange(0.0, min(curve.length, grasp_arc_length + GRASP_WINDOW_M) + 1e-12, SAMPLE_STEP_M)
+    points = curve.at(s)
+    grasp = curve.at(min(grasp_arc_length, curve.length))
+    mm_per_px = 1000 * float(grasp[2]) / camera.fx
+    longest, where = 0.0, "left"
+    for view, sequence in zip(("left", "right"), resampled, strict=True):
+        samples = sequence.points[:, :2]
+        to_grasp = np.linalg.norm(samples - camera.project(grasp[None], view)[0], axis=1)
+        end = int(np.argmax(to_grasp <= to_grasp.min() + TIP_MATCH_PX)) + 1
+        off = _distance_to_polyline(samples[:end], camera.project(points, view)) > EXPLAINED_PX
+        off &= sequence.observed[:end]
+        run = _longest_run_px(sequence.arc[:end], off)
+        if run * mm_per_px > longest:
+            longest, where = run * mm_per_px, view
+    return longest, where
+
+
+def _distance_to_polyline(uv: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """(Q,) distance (px) of pixels ``uv`` (Q, 2) from the polyline (K, 2)."""
+    if len(polyline) < 2:
+        return np.linalg.norm(uv - polyline[:1], axis=1) if len(polyline) else np.full(len(uv), np.inf)
+    a, ab = polyline[:-1], np.diff(polyline, axis=0)
+    _, nearest = cKDTree(a + 0.5 * ab).query(uv, k=min(8, len(a)))
+    nearest = nearest.reshape(len(uv), -1)
+    start, step = a[nearest], ab[nearest]  # (Q, k, 2)
+    t = np.einsum("qkd,qkd->qk", uv[:, None] - start, step) / np.maximum((step * step).sum(-1), 1e-12)
+    closest = start + np.clip(t, 0.0, 1.0)[..., None] * step
+    return np.linalg.norm(uv[:, None] - closest, axis=-1).min(axis=1)
+
+
+def _longest_run_px(arc: np.ndarray, flagged: np.ndarray) -> float:
+    """Longest arc (px) of an unbroken run of ``flagged`` samples (one sample: its own 1 px)."""
+    longest, start = 0.0, None
+    for k, value in enumerate(flagged):
+        if value and start is None:
+            start = k
+        if start is not None and (not value or k == len(flagged) - 1):
+            last = k if value else k - 1
+            longest = max(longest, float(arc[last] - arc[start]) + 1.0)
+            start = None
+    return longest
+
+
+def refuse_unexplained_arc(arc_mm: float, view: str, max_arc_mm: float) -> None:
+    """Raise UnexplainedArcError when ``arc_mm`` (:func:`unexplained_arc_mm`) exceeds ``max_arc_mm``."""
+    if arc_mm > max_arc_mm:
+        raise UnexplainedArcError(
+            f"{arc_mm:.1f} mm of the {view} view's sequence between the cut tip and the grasp point "
+            f"lies off the reconstructed thread (more than max_unexplained_arc_mm {max_arc_mm:g}): "
+            "that view saw thread there which the 3D thread does not hold (a hook or branch one "
+            "view followed and the other cut across), so the grasp point, placed by arc length "
+            "from the tip, would be about that much off "
+            "along the thread; check both views' masks and sequences near the tip"
         )

@@ -12,6 +12,7 @@ from suture_reconstruction import (
     ReconstructionParams,
     TipNotReconstructedError,
     UncertainGraspError,
+    UnexplainedArcError,
     reconstruct,
 )
 
@@ -129,13 +130,15 @@ def tip_along_the_rows(camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     heading = np.radians(60.0) * np.clip((s - 0.03) / 0.01, 0.0, 1.0)
     xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * 5e-5, axis=0) - [0.04, 0.02]
     curve = np.column_stack([xy, np.full(len(s), 0.1)])
-    sequences = []
-    for view in ("left", "right"):
-        uv = camera.project(curve, view)
-        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
-        t = np.arange(0.0, arc[-1], 1.0)
-        sequences.append(np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])]))
-    return curve, sequences[0], sequences[1]
+    return curve, exact_sequence(camera, curve, "left"), exact_sequence(camera, curve, "right")
+
+
+def exact_sequence(camera, curve: np.ndarray, view: str) -> np.ndarray:
+    """The view's sequence of ``curve``: every 1 px from the tip, without noise."""
+    uv = camera.project(curve, view)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+    t = np.arange(0.0, arc[-1], 1.0)
+    return np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])])
 
 
 def test_a_thread_whose_tip_stretch_has_no_stereo_support_is_refused():
@@ -150,7 +153,8 @@ def test_a_thread_whose_tip_stretch_has_no_stereo_support_is_refused():
     # 30 mm along the rows have no crossing to pair, so the 3D thread starts at the bend. Counted
     # from there, the grasp point would lie about 20 mm too far along the thread.
     right[:6, 1] -= 4.0
-    lenient = reconstruct(left, right, camera, ReconstructionParams(max_tip_gap_mm=1000.0))
+    lenient_params = ReconstructionParams(max_tip_gap_mm=1000.0, max_unexplained_arc_mm=1000.0)
+    lenient = reconstruct(left, right, camera, lenient_params)
     assert np.linalg.norm(lenient.grasp_position - true_grasp) > 0.01
     with pytest.raises(TipNotReconstructedError, match=r"starts 2\d\.\d mm of arc after the cut tip"):
         reconstruct(left, right, camera)
@@ -213,3 +217,40 @@ def test_the_tip_gap_counts_from_the_earliest_pass_near_the_start():
     assert tip_gap_mm(curve_from((130.0, 200.0)), left, camera) == pytest.approx(
         30 * 100 / camera.fx, abs=0.7
     )
+
+
+def tip_loop(with_loop: bool) -> np.ndarray:
+    """A 90 mm thread 95-105 mm away at 60 deg to the image rows (m, every 0.05 mm) that curls once
+    around a 1.5 mm radius loop 1 mm from the cut tip (about 9.4 mm of arc), or the same thread with
+    the loop cut out (``with_loop`` False)."""
+    step = 5e-5
+    direction = np.array([np.cos(np.radians(60.0)), np.sin(np.radians(60.0))])
+    normal = np.array([-direction[1], direction[0]])
+    before = np.arange(0.0, 0.001, step)[:, None] * direction
+    radius = 0.0015
+    turn = np.arange(0.0, 2 * np.pi, step / radius)[:, None]
+    loop = before[-1] + step * direction + radius * (np.sin(turn) * direction + (1 - np.cos(turn)) * normal)
+    after = before[-1] + step * direction + np.arange(0.0, 0.08, step)[:, None] * direction
+    xy = np.vstack([before, loop, after] if with_loop else [before, after]) - [0.02, 0.03]
+    return np.column_stack([xy, 0.1 + 0.1 * xy[:, 0]])
+
+
+def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused():
+    camera = StereoCamera.default(640, 480)
+    curve = tip_loop(with_loop=True)
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    true_grasp = curve[np.argmin(np.abs(arc - 0.05))]
+    right = exact_sequence(camera, curve, "right")
+    both = reconstruct(exact_sequence(camera, curve, "left"), right, camera)
+    assert np.linalg.norm(both.grasp_position - true_grasp) < 0.001
+    # The left sequence cuts across the loop; the right one follows it. The 3D thread follows the
+    # left view and lies on both sequences, so the views do not disagree, but it lacks the loop's
+    # arc: counted from the tip, the grasp point lies that much too far along the thread.
+    left = exact_sequence(camera, tip_loop(with_loop=False), "left")
+    lenient = reconstruct(left, right, camera, ReconstructionParams(max_unexplained_arc_mm=1000.0))
+    assert np.linalg.norm(lenient.grasp_position - true_grasp) > 0.005
+    assert lenient.uncertainty.total_mm < 15.0
+    with pytest.raises(UnexplainedArcError, match=r"[5-9]\.\d mm of the right view's sequence"):
+        reconstruct(left, right, camera)
+    with pytest.raises(ValueError, match="max_unexplained_arc_mm"):
+        ReconstructionParams(max_unexplained_arc_mm=0.0)
