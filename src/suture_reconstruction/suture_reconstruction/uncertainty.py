@@ -355,15 +355,11 @@ def _distance_to_polyline(uv: np.ndarray, polyline: np.ndarray) -> np.ndarray:
 
 def _longest_run_px(arc: np.ndarray, flagged: np.ndarray) -> float:
     """Longest arc (px) of an unbroken run of ``flagged`` samples (one sample: its own 1 px)."""
-    longest, start = 0.0, None
-    for k, value in enumerate(flagged):
-        if value and start is None:
-            start = k
-        if start is not None and (not value or k == len(flagged) - 1):
-            last = k if value else k - 1
-            longest = max(longest, float(arc[last] - arc[start]) + 1.0)
-            start = None
-    return longest
+    edges = np.diff(np.concatenate(([0], np.asarray(flagged, dtype=np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    if len(starts) == 0:
+        return 0.0
+    return float(np.max(arc[ends] - arc[starts])) + 1.0
 
 
 def refuse_unexplained_arc(arc_mm: float, view: str, max_arc_mm: float) -> None:
