@@ -7,6 +7,7 @@ rclpy adapter (the only module here that imports rclpy).
 
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import (
+    ArcAlongViewError,
     GraspNotSeenError,
     GraspRefusedError,
     ImagePairError,
@@ -25,6 +26,7 @@ from suture_reconstruction.shape_graph import ShapeGraphParams
 from suture_reconstruction.uncertainty import GraspUncertainty
 
 __all__ = [
+    "ArcAlongViewError",
     "DisparitySmoothing",
     "GraspNotSeenError",
     "GraspRefusedError",

@@ -37,13 +37,15 @@ both call. Steps (paper Section II.B end and II.C):
    uncertainty (:mod:`suture_reconstruction.uncertainty`): a thread whose reconstruction starts
    more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, one
    uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
-   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, is refused.
+   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or whose arc
+   from the tip is more than ``max_arc_image_ratio`` times the length its image covers, is refused.
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError and UnexplainedArcError
+camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError, UnexplainedArcError
+and ArcAlongViewError
 for a grasp point that is not trusted)
 and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
@@ -77,7 +79,9 @@ from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optim
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
 from suture_reconstruction.uncertainty import (
     GraspUncertainty,
+    arc_image_ratio,
     assess_grasp,
+    refuse_arc_along_view,
     refuse_late_start,
     refuse_uncertain_grasp,
     refuse_unexplained_arc,
@@ -106,8 +110,8 @@ class ReconstructionParams:
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
     ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
-    ``refuse_unseen_grasp``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm`` (the refusals of
-    :mod:`suture_reconstruction.uncertainty`).
+    ``refuse_unseen_grasp``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm``,
+    ``max_arc_image_ratio`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
     """
@@ -184,6 +188,16 @@ class ReconstructionParams:
             (0.0, 1000.0),
         ),
     )
+    max_arc_image_ratio: float = field(
+        default=2.0,
+        metadata=described(
+            "largest ratio of the 3D arc from the cut tip to the grasp point to the length its left image "
+            "covers at the thread's depth (1 for a thread across the viewing rays, 2 for one 60 degrees "
+            "out of the image plane on average); a larger one runs along the viewing rays, where its "
+            "length rests on disparity alone (ArcAlongViewError)",
+            (1.0, 1000.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -194,6 +208,8 @@ class ReconstructionParams:
                 raise ValueError(f"{name} must be positive, got {value}")
         if not self.max_unexplained_arc_mm > 0:
             raise ValueError(f"max_unexplained_arc_mm must be positive, got {self.max_unexplained_arc_mm}")
+        if not self.max_arc_image_ratio >= 1:
+            raise ValueError(f"max_arc_image_ratio must be at least 1, got {self.max_arc_image_ratio}")
         if not self.max_tip_gap_mm > 0:
             raise ValueError(f"max_tip_gap_mm must be positive, got {self.max_tip_gap_mm}")
         if not self.max_grasp_uncertainty_mm > 0:
@@ -349,6 +365,9 @@ def reconstruct(
     UnexplainedArcError
         A stretch longer than ``params.max_unexplained_arc_mm`` of a view's seen sequence between
         the cut tip and the grasp point lies off the 3D thread's projection.
+    ArcAlongViewError
+        The 3D arc from the cut tip to the grasp point is more than ``params.max_arc_image_ratio``
+        times the length its left image covers (it would run along the viewing rays).
     ReconstructionError
         Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
         point (the base class of all the above; a ``ValueError``).
@@ -410,6 +429,7 @@ def reconstruct(
     refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
     unexplained, view = unexplained_arc_mm(curve, camera, (left, right), params.grasp_arc_length)
     refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)
+    refuse_arc_along_view(arc_image_ratio(curve, camera, params.grasp_arc_length), params.max_arc_image_ratio)
     timer.lap("uncertainty")
     return Reconstruction(
         points=triangulated.points,

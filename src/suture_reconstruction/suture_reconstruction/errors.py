@@ -42,6 +42,12 @@ class UnexplainedArcError(ReconstructionError):
     (or the views followed different branches), so the grasp point is misplaced along the thread."""
 
 
+class ArcAlongViewError(ReconstructionError):
+    """The 3D arc from the cut tip to the grasp point runs mostly along the viewing rays: it is
+    many times longer than the stretch its image covers, so its length, which places the grasp
+    point, rests on disparity alone (or on pairs of different thread points in the two views)."""
+
+
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""

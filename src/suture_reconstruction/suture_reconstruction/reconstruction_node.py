@@ -38,7 +38,9 @@ grasp point a view does not see (GraspNotSeenError), one uncertain by more than
 ``max_grasp_uncertainty_mm`` (UncertainGraspError), one on a thread whose reconstruction
 starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
 which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread
-does not explain (UnexplainedArcError); nothing of it is published.
+does not explain (UnexplainedArcError), or whose 3D arc from the tip is more than
+``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError); nothing of it is
+published.
 """
 
 from __future__ import annotations
@@ -103,6 +105,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "refuse_unseen_grasp"),
     (ReconstructionParams, "max_tip_gap_mm"),
     (ReconstructionParams, "max_unexplained_arc_mm"),
+    (ReconstructionParams, "max_arc_image_ratio"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),

@@ -56,6 +56,17 @@ does not see it, since the 3D thread still lies on both sequences. :func:`refuse
 raises :class:`~suture_reconstruction.errors.UnexplainedArcError` when the longest such stretch
 exceeds ``max_unexplained_arc_mm``.
 
+:func:`arc_image_ratio` compares the 3D arc from the cut tip to the grasp point with the length
+its image covers in the left view (each pixel Z / fx at the thread's depth there). A thread lying
+on tissue in front of the camera runs roughly across the viewing rays and the two agree within a
+few tens of percent; an arc many times longer than its image runs along the rays, where stereo
+measures its length by disparity alone (1 px of disparity is several millimetres of depth), and
+where two views that started at different thread points (cut tips bridged across a gap the mask
+lost that are not the same point, their rows offset) pair their sequences into a steep dive in
+depth. :func:`refuse_arc_along_view` raises
+:class:`~suture_reconstruction.errors.ArcAlongViewError` when the ratio exceeds
+``max_arc_image_ratio``.
+
 Units: metres for 3D points and arc lengths, pixels in the images, millimetres for the
 uncertainty.
 """
@@ -70,6 +81,7 @@ from scipy.spatial import cKDTree
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
 from suture_reconstruction.errors import (
+    ArcAlongViewError,
     GraspNotSeenError,
     TipNotReconstructedError,
     UncertainGraspError,
@@ -372,4 +384,30 @@ def refuse_unexplained_arc(arc_mm: float, view: str, max_arc_mm: float) -> None:
             "view followed and the other cut across), so the grasp point, placed by arc length "
             "from the tip, would be about that much off "
             "along the thread; check both views' masks and sequences near the tip"
+        )
+
+
+def arc_image_ratio(curve: ArcLengthCurve, camera: StereoCamera, grasp_arc_length: float) -> float:
+    """The 3D arc from the cut tip to the grasp point divided by the length of its image in the
+    left view, each pixel taken as Z / fx m at the depth of the thread there; 1.0 for an arc too
+    short to measure (module docstring)."""
+    s = np.arange(0.0, min(curve.length, grasp_arc_length) + 1e-12, SAMPLE_STEP_M)
+    if s.size < 2:
+        return 1.0
+    points = curve.at(s)
+    uv = camera.project(points, "left")
+    depth = 0.5 * (points[1:, 2] + points[:-1, 2])
+    image_m = float(np.sum(np.hypot(*np.diff(uv, axis=0).T) * depth) / camera.fx)
+    return float(s[-1]) / max(image_m, 1e-12)
+
+
+def refuse_arc_along_view(ratio: float, max_ratio: float) -> None:
+    """Raise ArcAlongViewError when ``ratio`` (:func:`arc_image_ratio`) exceeds ``max_ratio``."""
+    if ratio > max_ratio:
+        raise ArcAlongViewError(
+            f"the 3D arc from the cut tip to the grasp point is {ratio:.1f} times the length its left "
+            f"image covers (more than max_arc_image_ratio {max_ratio:g}): the thread would run along "
+            "the viewing rays, where its length, which places the grasp point, rests on disparity "
+            "alone; usually the two views' sequences start at different thread points (check both "
+            "views' masks and tips)"
         )

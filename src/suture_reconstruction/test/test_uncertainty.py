@@ -8,6 +8,7 @@ import pytest
 
 from suture_common.camera import StereoCamera
 from suture_reconstruction import (
+    ArcAlongViewError,
     GraspNotSeenError,
     ReconstructionParams,
     TipNotReconstructedError,
@@ -254,3 +255,26 @@ def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused():
         reconstruct(left, right, camera)
     with pytest.raises(ValueError, match="max_unexplained_arc_mm"):
         ReconstructionParams(max_unexplained_arc_mm=0.0)
+
+
+def test_an_arc_along_the_viewing_rays_is_refused():
+    camera = StereoCamera.default(640, 480)
+    s = np.arange(0.0, 0.07, 5e-5)[:, None]
+    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
+    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
+    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
+    params = ReconstructionParams(**lenient)
+    # A thread running across the viewing rays: its arc is about the length its image covers.
+    flat = np.array([-0.03, -0.01, 0.09]) + s * across
+    result = reconstruct(
+        exact_sequence(camera, flat, "left"), exact_sequence(camera, flat, "right"), camera, params
+    )
+    assert np.linalg.norm(result.grasp_position - flat[1000]) < 0.002
+    # One 67 degrees out of the image plane: 50 mm of arc cover 20 mm of image.
+    steep = np.array([-0.01, -0.01, 0.07]) + s * along
+    left, right = exact_sequence(camera, steep, "left"), exact_sequence(camera, steep, "right")
+    reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
+    with pytest.raises(ArcAlongViewError, match=r"2\.\d times the length its left image covers"):
+        reconstruct(left, right, camera, params)
+    with pytest.raises(ValueError, match="max_arc_image_ratio"):
+        ReconstructionParams(max_arc_image_ratio=0.5)
