@@ -60,16 +60,19 @@ def surface_disparity(
     """The surface's disparity (px) in the windows above and below the left pixel ``uv`` (2,),
     searched within :data:`SEARCH_PX` of ``thread_disparity``; None for a window outside the image,
     without texture or without a clear match (module docstring)."""
-    left, right = _grey(images[0]), _grey(images[1])
-    height, width = left.shape
+    height, width = np.asarray(images[0]).shape[:2]
     half = PATCH_HALF_PX
-    u = round(float(uv[0]))
+    u, row = round(float(uv[0])), round(float(uv[1]))
+    top = max(row - PATCH_OFFSET_PX - half, 0)  # only the rows the windows cover are converted
+    band = slice(top, max(min(row + PATCH_OFFSET_PX + half + 1, height), top))
+    left, right = _grey(np.asarray(images[0])[band]), _grey(np.asarray(images[1])[band])
     found: list[float | None] = []
     for offset in (-PATCH_OFFSET_PX, PATCH_OFFSET_PX):
-        v = round(float(uv[1])) + offset
+        v = row + offset
         if v - half < 0 or v + half >= height or u - half < 0 or u + half >= width:
             found.append(None)
             continue
+        v -= top
         patch = left[v - half : v + half + 1, u - half : u + half + 1]
         lo = max(int(np.floor(u - thread_disparity - SEARCH_PX)) - half, 0)
         hi = min(int(np.ceil(u - thread_disparity + SEARCH_PX)) + half + 1, width)
