@@ -38,14 +38,17 @@ both call. Steps (paper Section II.B end and II.C):
    more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, one
    uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
    holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or whose arc
-   from the tip is more than ``max_arc_image_ratio`` times the length its image covers, is refused.
+   from the tip is more than ``max_arc_image_ratio`` times the length its image covers, is refused;
+   so is, where the thread runs along the image rows at the grasp point (its depth not measured
+   there), one that lies more than ``max_behind_surface_px`` of disparity behind the textured
+   surface beside it (:mod:`suture_reconstruction.surface`; only with images).
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
-camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError, UnexplainedArcError
-and ArcAlongViewError
+camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError, UnexplainedArcError,
+ArcAlongViewError and ThreadBehindSurfaceError
 for a grasp point that is not trusted)
 and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
@@ -76,8 +79,10 @@ from suture_reconstruction.pairing import (
 from suture_reconstruction.photometric import PhotometricParams, check_image_pair, refine_disparity
 from suture_reconstruction.sequences import Resampled, as_sequence, check_plausible
 from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optimise_shape
+from suture_reconstruction.surface import refuse_behind_surface, surface_gap_px
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
 from suture_reconstruction.uncertainty import (
+    UNSUPPORTED_ROW_DEG,
     GraspUncertainty,
     arc_image_ratio,
     assess_grasp,
@@ -198,6 +203,16 @@ class ReconstructionParams:
             (1.0, 1000.0),
         ),
     )
+    max_behind_surface_px: float = field(
+        default=3.0,
+        metadata=described(
+            "where the thread runs along the image rows at the grasp point (its depth not measured by "
+            "the pair), the largest disparity (px) by which the grasp point may lie behind the textured "
+            "surface beside it; farther is inside the tissue, a wrongly carried depth "
+            "(ThreadBehindSurfaceError; only checked with images)",
+            (0.0, 1000.0),
+        ),
+    )
 
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
@@ -210,6 +225,8 @@ class ReconstructionParams:
             raise ValueError(f"max_unexplained_arc_mm must be positive, got {self.max_unexplained_arc_mm}")
         if not self.max_arc_image_ratio >= 1:
             raise ValueError(f"max_arc_image_ratio must be at least 1, got {self.max_arc_image_ratio}")
+        if not self.max_behind_surface_px > 0:
+            raise ValueError(f"max_behind_surface_px must be positive, got {self.max_behind_surface_px}")
         if not self.max_tip_gap_mm > 0:
             raise ValueError(f"max_tip_gap_mm must be positive, got {self.max_tip_gap_mm}")
         if not self.max_grasp_uncertainty_mm > 0:
@@ -368,6 +385,9 @@ def reconstruct(
     ArcAlongViewError
         The 3D arc from the cut tip to the grasp point is more than ``params.max_arc_image_ratio``
         times the length its left image covers (it would run along the viewing rays).
+    ThreadBehindSurfaceError
+        With ``images``: the thread runs along the image rows at the grasp point and lies more than
+        ``params.max_behind_surface_px`` of disparity behind the surface beside it.
     ReconstructionError
         Algorithm 1 found no path, or the thread points along the viewing ray at the grasp
         point (the base class of all the above; a ``ValueError``).
@@ -430,6 +450,10 @@ def reconstruct(
     unexplained, view = unexplained_arc_mm(curve, camera, (left, right), params.grasp_arc_length)
     refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)
     refuse_arc_along_view(arc_image_ratio(curve, camera, params.grasp_arc_length), params.max_arc_image_ratio)
+    if images is not None and uncertainty.row_angle_deg < UNSUPPORTED_ROW_DEG:
+        grasp_uv = camera.project(grasp.position[None], "left")[0]
+        gap = surface_gap_px(images, grasp_uv, float(camera.disparity(grasp.position[2])))
+        refuse_behind_surface(gap, uncertainty.row_angle_deg, params.max_behind_surface_px)
     timer.lap("uncertainty")
     return Reconstruction(
         points=triangulated.points,

@@ -48,6 +48,12 @@ class ArcAlongViewError(ReconstructionError):
     point, rests on disparity alone (or on pairs of different thread points in the two views)."""
 
 
+class ThreadBehindSurfaceError(ReconstructionError):
+    """Where the thread runs along the image rows at the grasp point (its depth not measured by the
+    pair but carried from elsewhere), the reconstruction puts it behind the textured surface beside
+    it, whose depth the pair does measure: the carried depth, and the grasp point, are wrong."""
+
+
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""

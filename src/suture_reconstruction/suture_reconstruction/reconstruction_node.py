@@ -39,8 +39,10 @@ grasp point a view does not see (GraspNotSeenError), one uncertain by more than
 starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
 which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread
 does not explain (UnexplainedArcError), or whose 3D arc from the tip is more than
-``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError); nothing of it is
-published.
+``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError), or that lies, where
+the thread runs along the image rows, more than ``max_behind_surface_px`` of disparity behind the
+textured surface beside it (ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`); nothing
+of it is published.
 """
 
 from __future__ import annotations
@@ -106,6 +108,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "max_tip_gap_mm"),
     (ReconstructionParams, "max_unexplained_arc_mm"),
     (ReconstructionParams, "max_arc_image_ratio"),
+    (ReconstructionParams, "max_behind_surface_px"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),
