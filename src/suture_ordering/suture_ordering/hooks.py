@@ -35,7 +35,9 @@ radius; or, after the search from the free end nearest to the hint, when that en
 than ``NEAR`` px from the hint, when the search left pixels of the tip's thread near the tip
 unvisited (:func:`skipped_near_tip`), or when it came back near the tip to where it had passed.
 A walk is taken when it returns to a place it passed (a hook); where the search left pixels
-unvisited, any walk out of the window is.
+unvisited, or came back to where it had passed, any walk out of the window is: arms that touch
+without merging thin to one skeleton line along the thread (a walk that passes no place twice),
+while the search steps across from one arm to the other where they touch.
 
 Right view (:func:`stereo_tip`): a cut tip inside a hook is no free end on the epipolar band
 either. The disparity of the tip's neighbourhood is the shift along the row that lays the
@@ -789,13 +791,15 @@ def hook_after_search(
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
     tip in the stroke), the search came back near the tip to where it had passed, or it left
-    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`; then any walk out of
-    the window is taken). None: no hook; the search's sequence stands."""
+    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`). In the last two cases
+    any walk out of the window is taken: the search crossed from arm to arm where the skeleton
+    goes on along one line. None: no hook; the search's sequence stands."""
     far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
     skipped = skipped_near_tip(mask, points, tip, scaled)
-    if not (far or skipped or _returns_near_tip(points, tip, scaled)):
+    returns = _returns_near_tip(points, tip, scaled)
+    if not (far or skipped or returns):
         return None
-    return hook_start(mask, hint, scaled, require_return=not skipped, guide=guide)
+    return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide)
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

@@ -706,6 +706,15 @@ def test_right_views_tip_in_a_hook_takes_the_disparity_of_the_tips_own_neighbour
     check_stored_stereo_frame("hooked_right_tip_1280.npz")
 
 
+def test_arms_touching_where_the_search_steps_across_are_walked_along_the_skeleton():
+    """A simulator frame (hooked, 640x480, true masks): the hook's returning arm passes the cut
+    tip touching it, without merging into one stroke, so the window's skeleton is one line
+    from the tip along the thread. The search from the tip's free end stepped across onto the
+    returning arm where they touch and came back to where it had passed (ordered backwards);
+    the walk along the skeleton, which passes no place twice, is now taken."""
+    check_stored_stereo_frame("hooked_arms_touching_search_steps_across.npz", coverage=0.9)
+
+
 def check_stored_stereo_frame(name: str, coverage: float = 0.95) -> None:
     """Order a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint, true
     sequences; the simulator's default camera of that size) and check that both views follow
