@@ -24,7 +24,13 @@ import numpy as np
 
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
-from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError, TipNotOnThreadError
+from suture_ordering.errors import (
+    AmbiguousHookError,
+    InvalidInputError,
+    NoFreeEndError,
+    OrderingError,
+    TipNotOnThreadError,
+)
 from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence
 from suture_ordering.params import OrderingParams, ScaledParams
@@ -293,8 +299,9 @@ def order_stereo(
     ------
     OrderingError
         A subclass naming the view and the problem (see :func:`order_sequence`); also
-        :class:`InvalidInputError` when a mask's size differs from the camera's. With low masks,
-        the masks' error when neither pair gives a sequence.
+        :class:`InvalidInputError` when a mask's size differs from the camera's;
+        :class:`AmbiguousHookError` when the views go through a hook at the cut tip different
+        ways. With low masks, the masks' error when neither pair gives a sequence.
 
     Examples
     --------
@@ -392,7 +399,8 @@ def _right_view(
     another strand near the right tip is not read as a hook the left view did not see. Through
     a hook the left view started in, the walk follows ``left``'s sequence shifted by that
     disparity (the guide of :func:`suture_ordering.hooks.hook_walk`): both views go round a
-    loop of merged arms the same way."""
+    loop of merged arms the same way; where the right view's own rule would go round the other
+    way, the views disagree and the frame is refused (:class:`AmbiguousHookError`)."""
     clean, scaled = prepared.clean.mask, prepared.scaled
     left_tip, guide = left.tip, None
     try:
@@ -424,6 +432,7 @@ def _right_view(
             else hook_start(clean, guess, scaled, require_return=start is not None, guide=guide)
         )
         if hook is not None:
+            _check_views_agree(hook)
             return _search(prepared, hook.points[0], "epipolar", started, hook)
         if start is None:
             raise missing  # type: ignore[misc]
@@ -431,7 +440,23 @@ def _right_view(
     if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
         return result
     hook = hook_after_search(clean, start, start, result.points, scaled, guide)
-    return result if hook is None else _search(prepared, start, "epipolar", started, hook)
+    if hook is None:
+        return result
+    _check_views_agree(hook)
+    return _search(prepared, start, "epipolar", started, hook)
+
+
+def _check_views_agree(hook: HookStart) -> None:
+    """Raise :class:`AmbiguousHookError` when the right view's walk through the hook, guided by
+    the left view's, is not the one the right view's own rule takes: the views' masks disagree
+    about the way round the hook, and whichever way is published may be the wrong one."""
+    if not hook.agrees:
+        raise AmbiguousHookError(
+            "the views go through the hook at the cut tip different ways: this view's own "
+            "least-turning walk strays from the left view's (the arms merge or cross too closely "
+            "to tell the way round their loop); order another frame or move the camera",
+            "right",
+        )
 
 
 def _length(sequence: np.ndarray) -> float:

@@ -544,7 +544,7 @@ def hook_walk(
     near: float,
     guide: np.ndarray | None = None,
     scale: float = 1.0,
-) -> tuple[np.ndarray, bool] | None:
+) -> tuple[np.ndarray, bool, bool] | None:
     """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
     to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
     does not leave the window, or the skeleton there is not a hook's).
@@ -554,7 +554,9 @@ def hook_walk(
     this near to ``tip`` is the start; ``guide``: (K, 2) pixels of the same thread from its tip
     (the other view's, shifted by the disparity), or None; with it, only the walks within
     ``GUIDE_MARGIN`` px of the one that strays least from it compete; ``scale``: the image
-    width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed.
+    width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed,
+    and whether the guide agrees: the walk this view's own rule (the least turning) would take
+    is among those that compete (True without a guide).
     """
     height, width = mask.shape
     r = math.ceil(window_radius)
@@ -625,6 +627,7 @@ def hook_walk(
         if _loop_against_side(graph, walk, step, thread, sides):
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
+    agrees = True
     if guide is not None:
         offset = np.array([u0, v0], dtype=np.float64)
         apart = [
@@ -634,6 +637,7 @@ def hook_walk(
             for _, path in scored
         ]
         agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
+        agrees = best in agreeing
         best = min(agreeing, key=lambda k: scored[k][0])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
@@ -647,16 +651,19 @@ def hook_walk(
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
-    return path + np.array([u0, v0]), revisits
+    return path + np.array([u0, v0]), revisits, agrees
 
 
 @dataclass(frozen=True)
 class HookStart:
     """The walk from the cut tip through a hook: ``points`` (N, 2) float64 (u, v) ~1 px apart,
-    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves."""
+    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves;
+    ``agrees``: False where a guide (the other view's walk) chose another way through the hook
+    than this view's own rule would (:func:`hook_walk`)."""
 
     points: np.ndarray
     width: float
+    agrees: bool = True
 
 
 def hook_start(
@@ -688,7 +695,7 @@ def hook_start(
     )
     if found is None:
         return None
-    points, revisits = found
+    points, revisits, agrees = found
     if require_return and not revisits:
         return None
     tail = np.rint(points[-max(2, len(points) // 3) :]).astype(int)
@@ -700,7 +707,7 @@ def hook_start(
     inside &= tail[:, 1] - v0 < patch.shape[0]
     tail = tail[inside]
     thread = float(np.median(depth[tail[:, 1] - v0, tail[:, 0] - u0])) if len(tail) else 1.0
-    return HookStart(points, max(1.0, 2.0 * thread - 1.0))
+    return HookStart(points, max(1.0, 2.0 * thread - 1.0), agrees)
 
 
 def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
