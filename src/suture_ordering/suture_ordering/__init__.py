@@ -8,7 +8,6 @@ are :class:`OrderingError` subclasses. ``ordering_node`` is the thin rclpy adapt
 
 from suture_ordering.core import OrderingResult, StereoOrdering, order_sequence, order_stereo
 from suture_ordering.errors import (
-    AmbiguousHookError,
     EmptyMaskError,
     InvalidInputError,
     NoFreeEndError,
@@ -20,7 +19,6 @@ from suture_ordering.errors import (
 from suture_ordering.params import OrderingParams
 
 __all__ = [
-    "AmbiguousHookError",
     "EmptyMaskError",
     "InvalidInputError",
     "NoFreeEndError",

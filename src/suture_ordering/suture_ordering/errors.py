@@ -42,8 +42,3 @@ class NoFreeEndError(OrderingError):
 class UnexplainedTipError(OrderingError):
     """Thread near the cut tip lies off the ordered sequence (a hook or loop the search skipped):
     the grasp point's arc from the tip would be too short."""
-
-
-class AmbiguousHookError(OrderingError):
-    """The two views go through a hook at the cut tip different ways (each view's own rule
-    chooses another way round a loop of merged or crossing arms): the order there is not sure."""

@@ -544,7 +544,9 @@ def hook_walk(
     near: float,
     guide: np.ndarray | None = None,
     scale: float = 1.0,
-) -> tuple[np.ndarray, bool, bool] | None:
+    other: Alternatives | None = None,
+    choice: int | None = None,
+) -> _Walked | None:
     """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
     to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
     does not leave the window, or the skeleton there is not a hook's).
@@ -555,8 +557,16 @@ def hook_walk(
     (the other view's, shifted by the disparity), or None; with it, only the walks within
     ``GUIDE_MARGIN`` px of the one that strays least from it compete; ``scale``: the image
     width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed,
-    and whether the guide agrees: the walk this view's own rule (the least turning) would take
-    is among those that compete (True without a guide).
+    and the walks that competed (:class:`Alternatives`).
+
+    ``other``: the other view's alternatives (shifted by the disparity), with a guide. Where the
+    walk this view's own rule would take is not among those that agree with the guide, the
+    views' evidence disagrees (one view's side of merged arms or turn says one way round a
+    loop, the other's the other way); then each walk is paired with the other view's walk it
+    strays least from, and of the walks whose pair lies within ``GUIDE_MARGIN`` px of the
+    nearest pair, the one whose score and its pair's score sum least wins: both views' evidence
+    counts. The pair's index is returned (``other_choice``), so that the other view can take
+    it. ``choice``: the index of the walk to take (the pair the other view chose), or None.
     """
     height, width = mask.shape
     r = math.ceil(window_radius)
@@ -627,18 +637,18 @@ def hook_walk(
         if _loop_against_side(graph, walk, step, thread, sides):
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
-    agrees = True
-    if guide is not None:
-        offset = np.array([u0, v0], dtype=np.float64)
-        apart = [
-            _disagreement(
-                uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest") + offset, guide, GUIDE_SLACK * scale
-            )
-            for _, path in scored
-        ]
+    offset = np.array([u0, v0], dtype=np.float64)
+    smoothed = [uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest") + offset for _, path in scored]
+    other_choice = None
+    if choice is not None and 0 <= choice < len(scored):
+        best = choice
+    elif guide is not None:
+        apart = [_disagreement(path, guide, GUIDE_SLACK * scale) for path in smoothed]
         agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
-        agrees = best in agreeing
-        best = min(agreeing, key=lambda k: scored[k][0])
+        if best not in agreeing and other is not None and len(other.paths) > 1:
+            best, other_choice = _both_views(smoothed, [score for score, _ in scored], other, scale)
+        else:
+            best = min(agreeing, key=lambda k: scored[k][0])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
@@ -651,19 +661,63 @@ def hook_walk(
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
-    return path + np.array([u0, v0]), revisits, agrees
+    alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), best)
+    return _Walked(path + offset, revisits, alternatives, other_choice)
+
+
+def _both_views(
+    paths: list[np.ndarray], scores: list[float], other: Alternatives, scale: float
+) -> tuple[int, int]:
+    """The walk (an index of ``paths``, each (K, 2) float64 (u, v), with ``scores``) and its
+    pair among ``other``'s walks (an index) whose scores sum least, of the walks whose pair
+    (the other view's walk each strays least from, :func:`_disagreement`) lies within
+    ``GUIDE_MARGIN`` px (at 640 px) of the nearest pair."""
+    apart = np.array(
+        [[_disagreement(path, theirs, GUIDE_SLACK * scale) for theirs in other.paths] for path in paths]
+    )
+    pair = np.argmin(apart, axis=1)
+    nearest = apart[np.arange(len(paths)), pair]
+    matched = np.flatnonzero(nearest <= nearest.min() + GUIDE_MARGIN * scale)
+    total = np.asarray(scores)[matched] + np.asarray(other.scores)[pair[matched]]
+    best = int(matched[int(np.argmin(total))])
+    return best, int(pair[best])
+
+
+@dataclass(frozen=True)
+class Alternatives:
+    """The walks that competed through a hook (:func:`hook_walk`): ``paths``, each (K, 2)
+    float64 (u, v) from the tip (the skeleton's pixels, smoothed); ``scores``: each walk's
+    turning plus side penalty (rad, the least wins); ``chosen``: the index taken."""
+
+    paths: tuple[np.ndarray, ...]
+    scores: tuple[float, ...]
+    chosen: int
+
+    def shifted(self, offset: np.ndarray) -> Alternatives:
+        """The same walks moved by ``offset`` ((2,) px, u, v): the other view's."""
+        return Alternatives(tuple(path + offset for path in self.paths), self.scores, self.chosen)
+
+
+@dataclass(frozen=True)
+class _Walked:
+    points: np.ndarray
+    revisits: bool
+    alternatives: Alternatives
+    other_choice: int | None
 
 
 @dataclass(frozen=True)
 class HookStart:
     """The walk from the cut tip through a hook: ``points`` (N, 2) float64 (u, v) ~1 px apart,
     from the tip to the window's rim; ``width``: the thread's width (px) where it leaves;
-    ``agrees``: False where a guide (the other view's walk) chose another way through the hook
-    than this view's own rule would (:func:`hook_walk`)."""
+    ``alternatives``: the walks that competed; ``other_choice``: where both views' evidence
+    chose the walk, the index of the other view's walk paired with it (:func:`hook_walk`),
+    else None."""
 
     points: np.ndarray
     width: float
-    agrees: bool = True
+    alternatives: Alternatives | None = None
+    other_choice: int | None = None
 
 
 def hook_start(
@@ -672,6 +726,8 @@ def hook_start(
     scaled: ScaledParams,
     require_return: bool = True,
     guide: np.ndarray | None = None,
+    other: Alternatives | None = None,
+    choice: int | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``tip`` ((2,) (u, v), a hint or a free end) in ``mask``
     ((H, W) 0/1, the cleaned mask), or None when there is no hook there: the thread runs from
@@ -680,7 +736,7 @@ def hook_start(
 
     A hook is a walk that comes back to a place it has passed: a free end it turns back at
     (the bend of merged arms) or a junction it passes twice (a loop). ``require_return=False``:
-    any walk out of the window is taken. ``guide``: see :func:`hook_walk`.
+    any walk out of the window is taken. ``guide``, ``other``, ``choice``: see :func:`hook_walk`.
     """
     window = HOOK_WINDOW * scaled.roi_radius
     found = hook_walk(
@@ -692,11 +748,13 @@ def hook_start(
         NEAR * scaled.scale,
         guide,
         scaled.scale,
+        other,
+        choice,
     )
     if found is None:
         return None
-    points, revisits, agrees = found
-    if require_return and not revisits:
+    points = found.points
+    if require_return and not found.revisits:
         return None
     tail = np.rint(points[-max(2, len(points) // 3) :]).astype(int)
     r = int(np.ceil(window)) + 2
@@ -707,7 +765,7 @@ def hook_start(
     inside &= tail[:, 1] - v0 < patch.shape[0]
     tail = tail[inside]
     thread = float(np.median(depth[tail[:, 1] - v0, tail[:, 0] - u0])) if len(tail) else 1.0
-    return HookStart(points, max(1.0, 2.0 * thread - 1.0), agrees)
+    return HookStart(points, max(1.0, 2.0 * thread - 1.0), found.alternatives, found.other_choice)
 
 
 def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
@@ -794,6 +852,7 @@ def hook_after_search(
     points: np.ndarray,
     scaled: ScaledParams,
     guide: np.ndarray | None = None,
+    other: Alternatives | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
@@ -806,7 +865,7 @@ def hook_after_search(
     returns = _returns_near_tip(points, tip, scaled)
     if not (far or skipped or returns):
         return None
-    return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide)
+    return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide, other=other)
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

@@ -42,8 +42,7 @@ when it arrives (:class:`suture_common.camera.CameraInfoCache` keeps it). A malf
 or NaN, a thread without free end...) drops that frame with one throttled warning naming the
 problem; the node keeps serving. So does an ordering it cannot trust: mask pixels near either
 view's cut tip that the sequence does not explain (a hook or loop the search skipped,
-``UnexplainedTipError``, parameters ``tip_unexplained_radius_px`` and ``tip_unexplained_max_px``),
-or views that go through a hook at the cut tip different ways (``AmbiguousHookError``).
+``UnexplainedTipError``, parameters ``tip_unexplained_radius_px`` and ``tip_unexplained_max_px``).
 """
 
 from __future__ import annotations
