@@ -48,7 +48,11 @@ Where the arms lie on top of each other, the skeleton is the same both ways roun
 their end and the least-turning rule may go round against the thread; with a *guide* (the left
 view's sequence shifted by that disparity) the right view's walk is chosen among those that
 stray least from it (:func:`_disagreement`, ``GUIDE_MARGIN``), so that both views go round the
-same way; of those, the least turning wins.
+same way; of those, the least turning wins. Where the right view's own choice is not among
+them, the views' evidence disagrees (a side of merged arms or a turn within a pixel's noise in
+one view): each right walk is paired with the left view's walk (of all the left view compared)
+that it strays least from, and the pair whose scores sum least is taken in both views
+(:func:`_both_views`; the left view walks its hook again along its walk of the pair).
 """
 
 from __future__ import annotations
@@ -76,6 +80,9 @@ MAX_PASSES = 2 * MAX_BRANCHES + 2
 #: The walks compared, and the search for them, are bounded (a hook has a handful).
 MAX_WALKS = 200
 MAX_CALLS = 20000
+#: The pairs of the two views' walks compared where they disagree are bounded too (beyond, the
+#: guide's choice stands).
+MAX_PAIRS = 400
 #: Points of the walk averaged (a moving average along it).
 SMOOTHING = 7
 #: The walk's window: this many RoI radii Υ around the tip.
@@ -645,7 +652,8 @@ def hook_walk(
     elif guide is not None:
         apart = [_disagreement(path, guide, GUIDE_SLACK * scale) for path in smoothed]
         agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
-        if best not in agreeing and other is not None and len(other.paths) > 1:
+        pairs = len(scored) * (0 if other is None else len(other.paths))
+        if best not in agreeing and other is not None and len(other.paths) > 1 and pairs <= MAX_PAIRS:
             best, other_choice = _both_views(smoothed, [score for score, _ in scored], other, scale)
         else:
             best = min(agreeing, key=lambda k: scored[k][0])
