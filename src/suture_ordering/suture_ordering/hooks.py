@@ -640,8 +640,9 @@ def hook_walk(
     for walk in walks:
         turn, path = _turning(graph, walk, step)
         scored.append((turn + 1e-3 * len(path), path))
-    for index, walk in enumerate(walks):
-        if _loop_against_side(graph, walk, step, thread, sides):
+    against = [_loop_against_side(graph, walk, step, thread, sides) for walk in walks]
+    for index, flagged in enumerate(against):
+        if flagged:
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
     offset = np.array([u0, v0], dtype=np.float64)
@@ -653,10 +654,12 @@ def hook_walk(
         apart = [_disagreement(path, guide, GUIDE_SLACK * scale) for path in smoothed]
         agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
         pairs = len(scored) * (0 if other is None else len(other.paths))
+        guided = min(agreeing, key=lambda k: scored[k][0])
+        both = None
         if best not in agreeing and other is not None and len(other.paths) > 1 and pairs <= MAX_PAIRS:
-            best, other_choice = _both_views(smoothed, [score for score, _ in scored], other, scale)
-        else:
-            best = min(agreeing, key=lambda k: scored[k][0])
+            scores = [score for score, _ in scored]
+            both = _both_views(smoothed, scores, against, other, scale, (best, guided))
+        best, other_choice = (guided, None) if both is None else both
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
@@ -669,21 +672,34 @@ def hook_walk(
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
-    alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), best)
+    alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), tuple(against), best)
     return _Walked(path + offset, revisits, alternatives, other_choice)
 
 
 def _both_views(
-    paths: list[np.ndarray], scores: list[float], other: Alternatives, scale: float
-) -> tuple[int, int]:
-    """The walk (an index of ``paths``, each (K, 2) float64 (u, v), with ``scores``) and its
-    pair among ``other``'s walks (an index) whose scores sum least, of the walks whose pair
-    (the other view's walk each strays least from, :func:`_disagreement`) lies within
-    ``GUIDE_MARGIN`` px (at 640 px) of the nearest pair."""
+    paths: list[np.ndarray],
+    scores: list[float],
+    against: list[bool],
+    other: Alternatives,
+    scale: float,
+    contested: tuple[int, int],
+) -> tuple[int, int] | None:
+    """The walk (an index of ``paths``, each (K, 2) float64 (u, v), with ``scores`` and the
+    side rule's flags ``against``) and its pair among ``other``'s walks (an index) whose scores
+    sum least, of the walks whose pair (the other view's walk each strays least from,
+    :func:`_disagreement`) lies within ``GUIDE_MARGIN`` px (at 640 px) of the nearest pair.
+
+    ``contested``: this view's own choice and the guide's. None where the side rule tells
+    neither view's two ways apart (the views differ in turning only): the guide's choice
+    stands, the other view's walk starting from the cut tip's pixel itself rather than one
+    matched by disparity."""
     apart = np.array(
         [[_disagreement(path, theirs, GUIDE_SLACK * scale) for theirs in other.paths] for path in paths]
     )
     pair = np.argmin(apart, axis=1)
+    own, guided = contested
+    if against[own] == against[guided] and other.against[other.chosen] == other.against[pair[own]]:
+        return None
     nearest = apart[np.arange(len(paths)), pair]
     matched = np.flatnonzero(nearest <= nearest.min() + GUIDE_MARGIN * scale)
     total = np.asarray(scores)[matched] + np.asarray(other.scores)[pair[matched]]
@@ -695,15 +711,18 @@ def _both_views(
 class Alternatives:
     """The walks that competed through a hook (:func:`hook_walk`): ``paths``, each (K, 2)
     float64 (u, v) from the tip (the skeleton's pixels, smoothed); ``scores``: each walk's
-    turning plus side penalty (rad, the least wins); ``chosen``: the index taken."""
+    turning plus side penalty (rad, the least wins); ``against``: whether the side rule
+    penalised each (:func:`_loop_against_side`); ``chosen``: the index taken."""
 
     paths: tuple[np.ndarray, ...]
     scores: tuple[float, ...]
+    against: tuple[bool, ...]
     chosen: int
 
     def shifted(self, offset: np.ndarray) -> Alternatives:
         """The same walks moved by ``offset`` ((2,) px, u, v): the other view's."""
-        return Alternatives(tuple(path + offset for path in self.paths), self.scores, self.chosen)
+        moved = tuple(path + offset for path in self.paths)
+        return Alternatives(moved, self.scores, self.against, self.chosen)
 
 
 @dataclass(frozen=True)
