@@ -49,10 +49,12 @@ their end and the least-turning rule may go round against the thread; with a *gu
 view's sequence shifted by that disparity) the right view's walk is chosen among those that
 stray least from it (:func:`_disagreement`, ``GUIDE_MARGIN``), so that both views go round the
 same way; of those, the least turning wins. Where the right view's own choice is not among
-them, the views' evidence disagrees (a side of merged arms or a turn within a pixel's noise in
-one view): each right walk is paired with the left view's walk (of all the left view compared)
-that it strays least from, and the pair whose scores sum least is taken in both views
-(:func:`_both_views`; the left view walks its hook again along its walk of the pair).
+them and the side rule set it apart in either view (a side of merged arms within a pixel's
+noise outweighs the turn in one view and not in the other), each right walk is paired with the
+left view's walk (of all the left view compared) that it strays least from, and the pair whose
+scores sum least is taken in both views (:func:`_both_views`; the left view walks its hook
+again along its walk of the pair). Where the views differ in turning only, the left view's
+walk stands: it starts at the hint, the right view's at a pixel matched by disparity.
 """
 
 from __future__ import annotations
