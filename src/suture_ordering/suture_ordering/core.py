@@ -195,8 +195,9 @@ def order_sequence(
 
 def _order_view(
     mask: np.ndarray, tip: np.ndarray | None, params: OrderingParams, view: str | None
-) -> tuple[OrderingResult, _Prepared, bool]:
-    """One view's ordering, its prepared mask, and whether it started through a hook."""
+) -> tuple[OrderingResult, _Prepared, HookStart | None]:
+    """One view's ordering, its prepared mask, and the walk through a hook it started with
+    (None: none)."""
     started = time.perf_counter()
     if tip is not None:  # reject a bad hint before spending time on the mask
         shape = np.shape(mask)
@@ -206,7 +207,7 @@ def _order_view(
     clean, scaled = prepared.clean.mask, prepared.scaled
     if tip is None:
         start = automatic_tip(clean, scaled.tip_radius, view)
-        return _search(prepared, start, "automatic", started), prepared, False
+        return _search(prepared, start, "automatic", started), prepared, None
     # A cut tip inside a hook (no free end there, or the free end is the hook's bend).
     try:
         start = tip_from_hint(clean, tip, scaled.tip_radius, view)
@@ -214,19 +215,19 @@ def _order_view(
         hook = hook_start(clean, tip, scaled)
         if hook is None:
             raise
-        return _search(prepared, tip, "hint", started, hook), prepared, True
+        return _search(prepared, tip, "hint", started, hook), prepared, hook
     except TipNotOnThreadError:
         end = None
         if scaled.tip_gap_max > 0:
             end = tip_across_gap(clean, tip, scaled.tip_radius, scaled.tip_gap_max, params.tip_gap_max_angle)
         if end is None:
             raise
-        return _with_tip_gap(_search(prepared, end, "hint", started), tip), prepared, False
+        return _with_tip_gap(_search(prepared, end, "hint", started), tip), prepared, None
     result = _search(prepared, start, "hint", started)
     hook = hook_after_search(clean, tip, start, result.points, scaled)
     if hook is None:
-        return result, prepared, False
-    return _search(prepared, tip, "hint", started, hook), prepared, True
+        return result, prepared, None
+    return _search(prepared, tip, "hint", started, hook), prepared, hook
 
 
 def _with_tip_gap(result: OrderingResult, tip: np.ndarray) -> OrderingResult:
@@ -293,8 +294,9 @@ def order_stereo(
     ------
     OrderingError
         A subclass naming the view and the problem (see :func:`order_sequence`); also
-        :class:`InvalidInputError` when a mask's size differs from the camera's. With low masks,
-        the masks' error when neither pair gives a sequence.
+        :class:`InvalidInputError` when a mask's size differs from the camera's;
+        :class:`AmbiguousHookError` when the views go through a hook at the cut tip different
+        ways. With low masks, the masks' error when neither pair gives a sequence.
 
     Examples
     --------
@@ -378,11 +380,11 @@ def _right_view(
     prepared: _Prepared,
     left_prepared: _Prepared,
     left: OrderingResult,
-    left_hooked: bool,
+    left_hook: HookStart | None,
     disparity_range: tuple[float, float],
     started: float,
     tip_gap_max_angle: float,
-) -> OrderingResult:
+) -> tuple[OrderingResult, int | None]:
     """The right view's ordering from the left tip: the free end on its epipolar band, or,
     when the band has no thread at all (the mask lost the cut end), the thread end that points
     back at it across the gap (:func:`suture_ordering.tip.right_tip_across_gap`), the stretch
@@ -392,9 +394,13 @@ def _right_view(
     another strand near the right tip is not read as a hook the left view did not see. Through
     a hook the left view started in, the walk follows ``left``'s sequence shifted by that
     disparity (the guide of :func:`suture_ordering.hooks.hook_walk`): both views go round a
-    loop of merged arms the same way."""
+    loop of merged arms the same way; where the right view's own rule would go round the other
+    way, both views' evidence chooses the way (``other``, ``other_choice`` of
+    :func:`suture_ordering.hooks.hook_walk`). Also the index of the left view's walk that the
+    right view's was paired with there (the left view must take it), else None."""
     clean, scaled = prepared.clean.mask, prepared.scaled
-    left_tip, guide = left.tip, None
+    left_tip, guide, other = left.tip, None, None
+    left_hooked = left_hook is not None
     try:
         start = right_tip(clean, left_tip, disparity_range, scaled.row_tolerance, scaled.tip_radius)
         missing = None
@@ -408,30 +414,50 @@ def _right_view(
             )
         if found is None:
             raise
-        return _with_tip_gap(_search(prepared, found[0], "epipolar", started), found[1])
+        return _with_tip_gap(_search(prepared, found[0], "epipolar", started), found[1]), None
     if start is None or left_hooked:
         guess = stereo_tip(
             left_prepared.clean.mask, clean, left_tip, disparity_range, scaled.row_tolerance, scaled
         )
         if start is None and guess is not None and not on_mask(clean, guess):
             guess = None  # the tip is missing from this mask, not inside a stroke
-        if guess is not None and left_hooked:
-            guide = left.points + (guess - np.asarray(left_tip, dtype=np.float64))
+        if guess is not None and left_hook is not None:
+            shift = guess - np.asarray(left_tip, dtype=np.float64)
+            guide = left.points + shift
+            if left_hook.alternatives is not None:
+                other = left_hook.alternatives.shifted(shift)
         # Without a free end on the band, any walk from the matched pixel out of the window.
         hook = (
             None
             if guess is None
-            else hook_start(clean, guess, scaled, require_return=start is not None, guide=guide)
+            else hook_start(clean, guess, scaled, require_return=start is not None, guide=guide, other=other)
         )
         if hook is not None:
-            return _search(prepared, hook.points[0], "epipolar", started, hook)
+            return _search(prepared, hook.points[0], "epipolar", started, hook), hook.other_choice
         if start is None:
             raise missing  # type: ignore[misc]
     result = _search(prepared, start, "epipolar", started)
     if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
-        return result
-    hook = hook_after_search(clean, start, start, result.points, scaled, guide)
-    return result if hook is None else _search(prepared, start, "epipolar", started, hook)
+        return result, None
+    hook = hook_after_search(clean, start, start, result.points, scaled, guide, other)
+    if hook is None:
+        return result, None
+    return _search(prepared, start, "epipolar", started, hook), hook.other_choice
+
+
+def _rewalk(
+    prepared: _Prepared, left: OrderingResult, hook: HookStart, choice: int, tip: np.ndarray
+) -> OrderingResult:
+    """The left view's ordering through its hook at ``tip`` along walk ``choice`` of its
+    alternatives, where both views' evidence chose that walk (:func:`_right_view`); ``left``
+    where it is the walk taken already."""
+    if hook.alternatives is None or hook.alternatives.chosen == choice:
+        return left
+    walk = hook_start(prepared.clean.mask, tip, prepared.scaled, require_return=False, choice=choice)
+    if walk is None:
+        return left
+    started = time.perf_counter() - left.elapsed_ms / 1e3
+    return _search(prepared, tip, left.tip_source, started, walk)
 
 
 def _length(sequence: np.ndarray) -> float:
@@ -446,19 +472,23 @@ def _order_pair(
     params: OrderingParams,
 ) -> StereoOrdering:
     """:func:`order_stereo` of one pair of masks (of the camera's size)."""
-    left, left_prepared, left_hooked = _order_view(left_mask, tip_hint, params, "left")
+    left, left_prepared, left_hook = _order_view(left_mask, tip_hint, params, "left")
     started = time.perf_counter()
     right_prepared = _prepare(right_mask, params, "right")
     d_min = float(camera.disparity(params.max_depth_m))
     d_max = float(camera.disparity(params.min_depth_m))
     gap, angle = _tip_gap(left), params.tip_gap_max_angle
     if gap == 0:
-        right = _right_view(right_prepared, left_prepared, left, left_hooked, (d_min, d_max), started, angle)
+        right, pair = _right_view(
+            right_prepared, left_prepared, left, left_hook, (d_min, d_max), started, angle
+        )
+        if pair is not None and left_hook is not None and tip_hint is not None:
+            left = _rewalk(left_prepared, left, left_hook, pair, tip_hint)
     else:  # the right view starts where the left one's mask does, and gets the same gap
         seen = dataclasses.replace(
             left, points=left.points[gap:], bridged=left.bridged[gap:], tip=left.points[gap]
         )
-        right = _right_view(right_prepared, left_prepared, seen, left_hooked, (d_min, d_max), started, angle)
+        right, _ = _right_view(right_prepared, left_prepared, seen, left_hook, (d_min, d_max), started, angle)
         right = _with_tip_gap(right, left.tip + (right.points[0] - left.points[gap]))
     # Where one view's search stopped at a gap and the other's went on, follow the other view.
     views = ((left, left_prepared, right, -1.0), (right, right_prepared, left, 1.0))

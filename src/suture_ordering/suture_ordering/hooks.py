@@ -35,7 +35,9 @@ radius; or, after the search from the free end nearest to the hint, when that en
 than ``NEAR`` px from the hint, when the search left pixels of the tip's thread near the tip
 unvisited (:func:`skipped_near_tip`), or when it came back near the tip to where it had passed.
 A walk is taken when it returns to a place it passed (a hook); where the search left pixels
-unvisited, any walk out of the window is.
+unvisited, or came back to where it had passed, any walk out of the window is: arms that touch
+without merging thin to one skeleton line along the thread (a walk that passes no place twice),
+while the search steps across from one arm to the other where they touch.
 
 Right view (:func:`stereo_tip`): a cut tip inside a hook is no free end on the epipolar band
 either. The disparity of the tip's neighbourhood is the shift along the row that lays the
@@ -46,7 +48,13 @@ Where the arms lie on top of each other, the skeleton is the same both ways roun
 their end and the least-turning rule may go round against the thread; with a *guide* (the left
 view's sequence shifted by that disparity) the right view's walk is chosen among those that
 stray least from it (:func:`_disagreement`, ``GUIDE_MARGIN``), so that both views go round the
-same way; of those, the least turning wins.
+same way; of those, the least turning wins. Where the right view's own choice is not among
+them and the side rule set it apart in either view (a side of merged arms within a pixel's
+noise outweighs the turn in one view and not in the other), each right walk is paired with the
+left view's walk (of all the left view compared) that it strays least from, and the pair whose
+scores sum least is taken in both views (:func:`_both_views`; the left view walks its hook
+again along its walk of the pair). Where the views differ in turning only, the left view's
+walk stands: it starts at the hint, the right view's at a pixel matched by disparity.
 """
 
 from __future__ import annotations
@@ -74,6 +82,9 @@ MAX_PASSES = 2 * MAX_BRANCHES + 2
 #: The walks compared, and the search for them, are bounded (a hook has a handful).
 MAX_WALKS = 200
 MAX_CALLS = 20000
+#: The pairs of the two views' walks compared where they disagree are bounded too (beyond, the
+#: guide's choice stands).
+MAX_PAIRS = 400
 #: Points of the walk averaged (a moving average along it).
 SMOOTHING = 7
 #: The walk's window: this many RoI radii Υ around the tip.
@@ -542,7 +553,9 @@ def hook_walk(
     near: float,
     guide: np.ndarray | None = None,
     scale: float = 1.0,
-) -> tuple[np.ndarray, bool] | None:
+    other: Alternatives | None = None,
+    choice: int | None = None,
+) -> _Walked | None:
     """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
     to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
     does not leave the window, or the skeleton there is not a hook's).
@@ -552,7 +565,17 @@ def hook_walk(
     this near to ``tip`` is the start; ``guide``: (K, 2) pixels of the same thread from its tip
     (the other view's, shifted by the disparity), or None; with it, only the walks within
     ``GUIDE_MARGIN`` px of the one that strays least from it compete; ``scale``: the image
-    width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed.
+    width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed,
+    and the walks that competed (:class:`Alternatives`).
+
+    ``other``: the other view's alternatives (shifted by the disparity), with a guide. Where the
+    walk this view's own rule would take is not among those that agree with the guide, the
+    views' evidence disagrees (one view's side of merged arms or turn says one way round a
+    loop, the other's the other way); then each walk is paired with the other view's walk it
+    strays least from, and of the walks whose pair lies within ``GUIDE_MARGIN`` px of the
+    nearest pair, the one whose score and its pair's score sum least wins: both views' evidence
+    counts. The pair's index is returned (``other_choice``), so that the other view can take
+    it. ``choice``: the index of the walk to take (the pair the other view chose), or None.
     """
     height, width = mask.shape
     r = math.ceil(window_radius)
@@ -619,20 +642,26 @@ def hook_walk(
     for walk in walks:
         turn, path = _turning(graph, walk, step)
         scored.append((turn + 1e-3 * len(path), path))
-    for index, walk in enumerate(walks):
-        if _loop_against_side(graph, walk, step, thread, sides):
+    against = [_loop_against_side(graph, walk, step, thread, sides) for walk in walks]
+    for index, flagged in enumerate(against):
+        if flagged:
             scored[index] = (scored[index][0] + SIDE_PENALTY, scored[index][1])
     best = min(range(len(scored)), key=lambda k: scored[k][0])
-    if guide is not None:
-        offset = np.array([u0, v0], dtype=np.float64)
-        apart = [
-            _disagreement(
-                uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest") + offset, guide, GUIDE_SLACK * scale
-            )
-            for _, path in scored
-        ]
+    offset = np.array([u0, v0], dtype=np.float64)
+    smoothed = [uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest") + offset for _, path in scored]
+    other_choice = None
+    if choice is not None and 0 <= choice < len(scored):
+        best = choice
+    elif guide is not None:
+        apart = [_disagreement(path, guide, GUIDE_SLACK * scale) for path in smoothed]
         agreeing = [k for k in range(len(scored)) if apart[k] <= min(apart) + GUIDE_MARGIN * scale]
-        best = min(agreeing, key=lambda k: scored[k][0])
+        pairs = len(scored) * (0 if other is None else len(other.paths))
+        guided = min(agreeing, key=lambda k: scored[k][0])
+        both = None
+        if best not in agreeing and other is not None and len(other.paths) > 1 and pairs <= MAX_PAIRS:
+            scores = [score for score, _ in scored]
+            both = _both_views(smoothed, scores, against, other, scale, (best, guided))
+        best, other_choice = (guided, None) if both is None else both
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
@@ -645,16 +674,79 @@ def hook_walk(
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
     path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
-    return path + np.array([u0, v0]), revisits
+    alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), tuple(against), best)
+    return _Walked(path + offset, revisits, alternatives, other_choice)
+
+
+def _both_views(
+    paths: list[np.ndarray],
+    scores: list[float],
+    against: list[bool],
+    other: Alternatives,
+    scale: float,
+    contested: tuple[int, int],
+) -> tuple[int, int] | None:
+    """The walk (an index of ``paths``, each (K, 2) float64 (u, v), with ``scores`` and the
+    side rule's flags ``against``) and its pair among ``other``'s walks (an index) whose scores
+    sum least, of the walks whose pair (the other view's walk each strays least from,
+    :func:`_disagreement`) lies within ``GUIDE_MARGIN`` px (at 640 px) of the nearest pair.
+
+    ``contested``: this view's own choice and the guide's. None where the side rule tells
+    neither view's two ways apart (the views differ in turning only): the guide's choice
+    stands, the other view's walk starting from the cut tip's pixel itself rather than one
+    matched by disparity."""
+    apart = np.array(
+        [[_disagreement(path, theirs, GUIDE_SLACK * scale) for theirs in other.paths] for path in paths]
+    )
+    pair = np.argmin(apart, axis=1)
+    own, guided = contested
+    if against[own] == against[guided] and other.against[other.chosen] == other.against[pair[own]]:
+        return None
+    nearest = apart[np.arange(len(paths)), pair]
+    matched = np.flatnonzero(nearest <= nearest.min() + GUIDE_MARGIN * scale)
+    total = np.asarray(scores)[matched] + np.asarray(other.scores)[pair[matched]]
+    best = int(matched[int(np.argmin(total))])
+    return best, int(pair[best])
+
+
+@dataclass(frozen=True)
+class Alternatives:
+    """The walks that competed through a hook (:func:`hook_walk`): ``paths``, each (K, 2)
+    float64 (u, v) from the tip (the skeleton's pixels, smoothed); ``scores``: each walk's
+    turning plus side penalty (rad, the least wins); ``against``: whether the side rule
+    penalised each (:func:`_loop_against_side`); ``chosen``: the index taken."""
+
+    paths: tuple[np.ndarray, ...]
+    scores: tuple[float, ...]
+    against: tuple[bool, ...]
+    chosen: int
+
+    def shifted(self, offset: np.ndarray) -> Alternatives:
+        """The same walks moved by ``offset`` ((2,) px, u, v): the other view's."""
+        moved = tuple(path + offset for path in self.paths)
+        return Alternatives(moved, self.scores, self.against, self.chosen)
+
+
+@dataclass(frozen=True)
+class _Walked:
+    points: np.ndarray
+    revisits: bool
+    alternatives: Alternatives
+    other_choice: int | None
 
 
 @dataclass(frozen=True)
 class HookStart:
     """The walk from the cut tip through a hook: ``points`` (N, 2) float64 (u, v) ~1 px apart,
-    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves."""
+    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves;
+    ``alternatives``: the walks that competed; ``other_choice``: where both views' evidence
+    chose the walk, the index of the other view's walk paired with it (:func:`hook_walk`),
+    else None."""
 
     points: np.ndarray
     width: float
+    alternatives: Alternatives | None = None
+    other_choice: int | None = None
 
 
 def hook_start(
@@ -663,6 +755,8 @@ def hook_start(
     scaled: ScaledParams,
     require_return: bool = True,
     guide: np.ndarray | None = None,
+    other: Alternatives | None = None,
+    choice: int | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``tip`` ((2,) (u, v), a hint or a free end) in ``mask``
     ((H, W) 0/1, the cleaned mask), or None when there is no hook there: the thread runs from
@@ -671,7 +765,7 @@ def hook_start(
 
     A hook is a walk that comes back to a place it has passed: a free end it turns back at
     (the bend of merged arms) or a junction it passes twice (a loop). ``require_return=False``:
-    any walk out of the window is taken. ``guide``: see :func:`hook_walk`.
+    any walk out of the window is taken. ``guide``, ``other``, ``choice``: see :func:`hook_walk`.
     """
     window = HOOK_WINDOW * scaled.roi_radius
     found = hook_walk(
@@ -683,11 +777,13 @@ def hook_start(
         NEAR * scaled.scale,
         guide,
         scaled.scale,
+        other,
+        choice,
     )
     if found is None:
         return None
-    points, revisits = found
-    if require_return and not revisits:
+    points = found.points
+    if require_return and not found.revisits:
         return None
     tail = np.rint(points[-max(2, len(points) // 3) :]).astype(int)
     r = int(np.ceil(window)) + 2
@@ -698,7 +794,7 @@ def hook_start(
     inside &= tail[:, 1] - v0 < patch.shape[0]
     tail = tail[inside]
     thread = float(np.median(depth[tail[:, 1] - v0, tail[:, 0] - u0])) if len(tail) else 1.0
-    return HookStart(points, max(1.0, 2.0 * thread - 1.0))
+    return HookStart(points, max(1.0, 2.0 * thread - 1.0), found.alternatives, found.other_choice)
 
 
 def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
@@ -785,17 +881,20 @@ def hook_after_search(
     points: np.ndarray,
     scaled: ScaledParams,
     guide: np.ndarray | None = None,
+    other: Alternatives | None = None,
 ) -> HookStart | None:
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
     tip in the stroke), the search came back near the tip to where it had passed, or it left
-    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`; then any walk out of
-    the window is taken). None: no hook; the search's sequence stands."""
+    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`). In the last two cases
+    any walk out of the window is taken: the search crossed from arm to arm where the skeleton
+    goes on along one line. None: no hook; the search's sequence stands."""
     far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
     skipped = skipped_near_tip(mask, points, tip, scaled)
-    if not (far or skipped or _returns_near_tip(points, tip, scaled)):
+    returns = _returns_near_tip(points, tip, scaled)
+    if not (far or skipped or returns):
         return None
-    return hook_start(mask, hint, scaled, require_return=not skipped, guide=guide)
+    return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide, other=other)
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

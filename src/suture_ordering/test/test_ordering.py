@@ -706,6 +706,26 @@ def test_right_views_tip_in_a_hook_takes_the_disparity_of_the_tips_own_neighbour
     check_stored_stereo_frame("hooked_right_tip_1280.npz")
 
 
+def test_arms_touching_where_the_search_steps_across_are_walked_along_the_skeleton():
+    """A simulator frame (hooked, 640x480, true masks): the hook's returning arm passes the cut
+    tip touching it, without merging into one stroke, so the window's skeleton is one line
+    from the tip along the thread. The search from the tip's free end stepped across onto the
+    returning arm where they touch and came back to where it had passed (ordered backwards);
+    the walk along the skeleton, which passes no place twice, is now taken."""
+    check_stored_stereo_frame("hooked_arms_touching_search_steps_across.npz", coverage=0.9)
+
+
+def test_views_whose_own_walks_go_round_a_hooks_loop_different_ways_take_both_views_evidence():
+    """A simulator frame (hooked, 640x480, true masks): a thread 1 px wide whose tip arm crosses
+    the returning arm 5 px from the cut tip, the two junctions of the crossing 2 px apart. The
+    left view's walk went round the loop beyond the crossing against the thread (the side of
+    the merged stroke, within a pixel's noise, outweighed the turn), and the right view, guided
+    by it, followed, while its own walk went the other way (both ordered backwards). Where the
+    views' own walks disagree, the walk whose score summed over both views is least is taken,
+    in both views."""
+    check_stored_stereo_frame("hooked_views_disagree_round_the_loop.npz", coverage=0.9)
+
+
 def check_stored_stereo_frame(name: str, coverage: float = 0.95) -> None:
     """Order a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint, true
     sequences; the simulator's default camera of that size) and check that both views follow
