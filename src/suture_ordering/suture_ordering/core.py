@@ -338,7 +338,8 @@ def order_stereo(
     if radius > 0:
         max_pixels = params.tip_unexplained_max_px * params.scale_for(camera.width) ** 2
         explained = low_masks if low_masks is not None else (left_mask, right_mask)
-        check_tip_explained(explained, (ordering.left, ordering.right), radius, max_pixels)
+        max_hole_area = _scaled_params(params, camera.width).max_hole_area
+        check_tip_explained(explained, (ordering.left, ordering.right), radius, max_pixels, max_hole_area)
     return ordering
 
 

@@ -14,6 +14,17 @@ point that lie farther from the sequence than the thread's own half width plus 1
 :data:`EXPLAINED_PX`), whether or not they connect to it
 there (the segmenter often keeps the loop's far side as a separate fragment). Another thread
 passing that close to the tip counts too: the ordering then refuses, the safe side.
+
+Where the hook at the tip is so tight that the mask cleaning filled its holes (the slit a pixel
+wide between merged arms, the small eye of a loop: ``max_hole_area``), the walk through the hook
+goes down the filled stroke's middle and back, or into the filled eye and back, and the arms'
+outer pixels, or the loop's rim, lie a little farther from it than one thread's half width. Those
+pixels are explained where the sequence passes twice, before it first leaves the tip's
+neighbourhood (:func:`_doubled`), and where the filling widened the stroke at the sequence's
+point: within 1 px more than that point's distance to the filled mask's edge (the discs about a
+medial axis that rebuild its shape; :func:`_covered`). A loop or hook the search skipped is not:
+the sequence does not come back to it, and a thread beside the sequence that it passes once is
+not either.
 :func:`check_tip_explained` raises :class:`~suture_ordering.errors.UnexplainedTipError`
 when either view has more than ``max_pixels``.
 """
@@ -29,12 +40,19 @@ from suture_ordering.errors import UnexplainedTipError
 
 #: A mask pixel within this distance (px) of the sequence's polyline is always explained by it.
 EXPLAINED_PX = 2.5
+#: Holes are filled, and the sequence's passes found, this much (px) beyond the radius: a hole or
+#: a walk's bend just past it counts as in the search's whole mask.
+COVER_MARGIN = 8
 
 
-def unexplained_tip_pixels(mask: np.ndarray, sequence: np.ndarray, radius: float) -> int:
+def unexplained_tip_pixels(
+    mask: np.ndarray, sequence: np.ndarray, radius: float, max_hole_area: float = 0.0
+) -> int:
     """Pixels of ``mask`` (H, W; nonzero: thread) within ``radius`` px of ``sequence[0]``
     ((N, 2) float (u, v), the ordered centreline from the tip) farther from the sequence's
-    polyline than the thread's own pixels lie (:func:`_explained_distance`)."""
+    polyline than the thread's own pixels lie (:func:`_explained_distance`) and not within the
+    reach of the filled stroke the sequence passes twice (:func:`_covered`; ``max_hole_area``:
+    px², the largest hole the search's mask cleaning fills; 0: none)."""
     sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
     if len(sequence) == 0:
         return 0
@@ -57,7 +75,78 @@ def unexplained_tip_pixels(mask: np.ndarray, sequence: np.ndarray, radius: float
         return 0
     explained = _explained_distance(window, local)
     far = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > explained
-    return int(np.count_nonzero((window > 0) & near & far))
+    rows, cols = np.nonzero((window > 0) & near & far)
+    if max_hole_area <= 0 or len(rows) == 0:
+        return len(rows)
+    pixels = np.column_stack((cols + u0, rows + v0))
+    return int(np.count_nonzero(~_covered(mask, sequence, pixels, radius + COVER_MARGIN, max_hole_area)))
+
+
+def _covered(
+    mask: np.ndarray, sequence: np.ndarray, pixels: np.ndarray, radius: float, max_hole_area: float
+) -> np.ndarray:
+    """Which ``pixels`` ((K, 2) int (u, v) of ``mask`` (H, W)) lie within 1 px more than the
+    filled mask's depth (the distance to its edge) of a point of ``sequence`` ((N, 2) float
+    (u, v) from the tip) that the sequence passes twice (:func:`_doubled`) and where filling
+    deepened the mask. (K,) bool. The filled mask is ``mask`` within ``radius`` px of the tip
+    with its holes of at most ``max_hole_area`` px² filled, as the search's cleaning fills them;
+    only the sequence's points from the tip until it first leaves ``radius`` count."""
+    height, width = mask.shape
+    tip = sequence[0]
+    r = math.ceil(radius) + 1
+    u0, v0 = max(0, round(float(tip[0])) - r), max(0, round(float(tip[1])) - r)
+    u1, v1 = min(width, round(float(tip[0])) + r + 1), min(height, round(float(tip[1])) + r + 1)
+    window = (np.asarray(mask[v0:v1, u0:u1]) > 0).astype(np.uint8)
+    filled = window.copy()
+    contours, hierarchy = cv2.findContours(filled, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is not None:
+        for parent, contour in zip(hierarchy[0][:, 3].tolist(), contours, strict=True):
+            if parent >= 0 and cv2.contourArea(contour) <= max_hole_area:  # a small hole
+                cv2.drawContours(filled, [contour], 0, 1, thickness=cv2.FILLED)
+    beyond = np.flatnonzero(np.hypot(*(sequence - tip).T) > radius + 1.0)
+    points = _dense(sequence[: beyond[0] + 1] if len(beyond) else sequence) - [u0, v0]
+    cells = np.rint(points).astype(np.int64)
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < u1 - u0) & (cells[:, 1] >= 0) & (cells[:, 1] < v1 - v0)
+    inside &= np.hypot(*(points - (tip - [u0, v0])).T) <= radius
+    first = len(points) if inside.all() else int(np.argmin(inside))  # where it first leaves
+    points, cells = points[:first], cells[:first]
+    if len(points) == 0:
+        return np.zeros(len(pixels), dtype=bool)
+    depth = cv2.distanceTransform(filled, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[cells[:, 1], cells[:, 0]]
+    own = cv2.distanceTransform(window, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[cells[:, 1], cells[:, 0]]
+    reach = depth + 1.0
+    chosen = _doubled(points, reach) & (depth > own)
+    if not chosen.any():
+        return np.zeros(len(pixels), dtype=bool)
+    points, reach = points[chosen], reach[chosen]
+    offsets = pixels - [u0, v0]
+    gap = np.hypot(offsets[:, None, 0] - points[None, :, 0], offsets[:, None, 1] - points[None, :, 1])
+    return (gap <= reach[None, :]).any(axis=1)
+
+
+def _doubled(points: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """Which ``points`` ((N, 2) float, along the sequence, at most 1 px apart) lie on a stretch
+    that the sequence passes twice: from a point to a later one within both points' ``reach``
+    ((N,) px) of it, after more than twice the larger reach of arc in between (down a stroke
+    and back, or into a small loop's filled eye and back). (N,) bool."""
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    apart = np.hypot(points[:, None, 0] - points[None, :, 0], points[:, None, 1] - points[None, :, 1])
+    later = arc[None, :] - arc[:, None] > 2.0 * np.maximum(reach[:, None], reach[None, :])
+    partner = later & (apart <= np.minimum(reach[:, None], reach[None, :]))
+    last = np.where(partner.any(axis=1), len(points) - 1 - np.argmax(partner[:, ::-1], axis=1), -1)
+    return np.maximum.accumulate(last) >= np.arange(len(points))
+
+
+def _dense(points: np.ndarray) -> np.ndarray:
+    """The polyline ``points`` ((N, 2) float) with points put in, at most 1 px apart."""
+    if len(points) < 2:
+        return points
+    lengths = np.hypot(*np.diff(points, axis=0).T)
+    counts = np.maximum(1, np.ceil(lengths)).astype(np.int64)
+    index = np.repeat(np.arange(len(points) - 1), counts)
+    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    dense = points[index] + (within / counts[index])[:, None] * (points[index + 1] - points[index])
+    return np.vstack([dense, points[-1:]])
 
 
 def _explained_distance(window: np.ndarray, local: np.ndarray) -> float:
@@ -78,12 +167,16 @@ def check_tip_explained(
     sequences: tuple[np.ndarray, np.ndarray],
     radius: float,
     max_pixels: float,
+    max_hole_area: float = 0.0,
 ) -> None:
     """Raise :class:`UnexplainedTipError` when, in either view, more than ``max_pixels`` of the
     mask near the tip (:func:`unexplained_tip_pixels` within ``radius`` px) lie off the sequence.
-    ``masks``: (left, right) (H, W); ``sequences``: (left, right) (N, 2) from the cut tip."""
+    ``masks``: (left, right) (H, W); ``sequences``: (left, right) (N, 2) from the cut tip;
+    ``max_hole_area``: px², the largest hole the ordering's mask cleaning fills."""
     for view, mask, sequence in zip(("left", "right"), masks, sequences, strict=True):
         unexplained = unexplained_tip_pixels(mask, sequence, radius)
+        if unexplained > max_pixels and max_hole_area > 0:  # fewer, never more: only where it decides
+            unexplained = unexplained_tip_pixels(mask, sequence, radius, max_hole_area)
         if unexplained > max_pixels:
             raise UnexplainedTipError(
                 f"{unexplained} px of thread within {radius:.0f} px of the cut tip lie off the ordered "
