@@ -90,6 +90,24 @@ def lifted_thread(heading_deg: float, lift: float = 0.006, width: float = 0.003)
     return np.column_stack([xy, z])
 
 
+def exact_view_sequences(camera: StereoCamera, curve: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The left and right image sequences (N, 2) of a dense 3D ``curve`` (m): every 1 px from the
+    tip, without noise."""
+    sequences = []
+    for view in ("left", "right"):
+        uv = camera.project(curve, view)
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
+        t = np.arange(0.0, arc[-1], 1.0)
+        sequences.append(np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])]))
+    return sequences[0], sequences[1]
+
+
+@pytest.fixture
+def exact_views() -> Callable[[StereoCamera, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """:func:`exact_view_sequences`, for tests that build their own threads."""
+    return exact_view_sequences
+
+
 @pytest.fixture
 def make_scene() -> Callable[..., Scene]:
     def make(

@@ -37,14 +37,6 @@ def thread_along_rows() -> np.ndarray:
     return np.column_stack([xy + np.array([0.035, -0.01]), np.full(len(s), 0.095)])
 
 
-def exact_sequence(camera: StereoCamera, curve: np.ndarray, view: str) -> np.ndarray:
-    """The view's sequence of ``curve``: every 1 px from the tip, without noise."""
-    uv = camera.project(curve, view)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
-    t = np.arange(0.0, arc[-1], 1.0)
-    return np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])])
-
-
 def test_the_surface_gap_is_the_planes_disparity_less_the_threads():
     camera = StereoCamera.default(640, 480)
     images = textured_pair(camera, 30)
@@ -63,10 +55,10 @@ def test_only_a_thread_along_the_rows_and_well_behind_the_surface_is_refused():
         refuse_behind_surface(8.0, 1.0, 3.0)
 
 
-def test_a_thread_along_the_rows_reconstructed_behind_the_tissue_is_refused():
+def test_a_thread_along_the_rows_reconstructed_behind_the_tissue_is_refused(exact_views):
     camera = StereoCamera.default(640, 480)
     curve = thread_along_rows()
-    left, right = exact_sequence(camera, curve, "left"), exact_sequence(camera, curve, "right")
+    left, right = exact_views(camera, curve)
     thread_disparity = float(camera.disparity(0.095))  # 27.4 px
     params = ReconstructionParams(**LENIENT)
     # The tissue 1 px behind the thread: the thread rests on it, the grasp is published.

@@ -124,27 +124,19 @@ def test_the_threshold_is_checked():
         ReconstructionParams(max_tip_gap_mm=0.0)
 
 
-def tip_along_the_rows(camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def tip_along_the_rows(camera, exact_views) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A 90 mm thread 100 mm away whose first 30 mm run exactly along an image row, then bend
     to 60 deg from the rows (m, every 0.05 mm), and its left and right sequences (every 1 px)."""
     s = np.arange(0.0, 0.09, 5e-5)
     heading = np.radians(60.0) * np.clip((s - 0.03) / 0.01, 0.0, 1.0)
     xy = np.cumsum(np.column_stack([np.cos(heading), np.sin(heading)]) * 5e-5, axis=0) - [0.04, 0.02]
     curve = np.column_stack([xy, np.full(len(s), 0.1)])
-    return curve, exact_sequence(camera, curve, "left"), exact_sequence(camera, curve, "right")
+    return (curve, *exact_views(camera, curve))
 
 
-def exact_sequence(camera, curve: np.ndarray, view: str) -> np.ndarray:
-    """The view's sequence of ``curve``: every 1 px from the tip, without noise."""
-    uv = camera.project(curve, view)
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))])
-    t = np.arange(0.0, arc[-1], 1.0)
-    return np.column_stack([np.interp(t, arc, uv[:, 0]), np.interp(t, arc, uv[:, 1])])
-
-
-def test_a_thread_whose_tip_stretch_has_no_stereo_support_is_refused():
+def test_a_thread_whose_tip_stretch_has_no_stereo_support_is_refused(exact_views):
     camera = StereoCamera.default(640, 480)
-    curve, left, right = tip_along_the_rows(camera)
+    curve, left, right = tip_along_the_rows(camera, exact_views)
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
     true_grasp = curve[np.argmin(np.abs(arc - 0.05))]
     # Both views' tips on one row: the tip pair carries the depth along the rows to the bend.
@@ -236,18 +228,18 @@ def tip_loop(with_loop: bool) -> np.ndarray:
     return np.column_stack([xy, 0.1 + 0.1 * xy[:, 0]])
 
 
-def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused():
+def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused(exact_views):
     camera = StereoCamera.default(640, 480)
     curve = tip_loop(with_loop=True)
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
     true_grasp = curve[np.argmin(np.abs(arc - 0.05))]
-    right = exact_sequence(camera, curve, "right")
-    both = reconstruct(exact_sequence(camera, curve, "left"), right, camera)
+    exact_left, right = exact_views(camera, curve)
+    both = reconstruct(exact_left, right, camera)
     assert np.linalg.norm(both.grasp_position - true_grasp) < 0.001
     # The left sequence cuts across the loop; the right one follows it. The 3D thread follows the
     # left view and lies on both sequences, so the views do not disagree, but it lacks the loop's
     # arc: counted from the tip, the grasp point lies that much too far along the thread.
-    left = exact_sequence(camera, tip_loop(with_loop=False), "left")
+    left = exact_views(camera, tip_loop(with_loop=False))[0]
     lenient = reconstruct(left, right, camera, ReconstructionParams(max_unexplained_arc_mm=1000.0))
     assert np.linalg.norm(lenient.grasp_position - true_grasp) > 0.005
     assert lenient.uncertainty.total_mm < 15.0
@@ -257,7 +249,7 @@ def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused():
         ReconstructionParams(max_unexplained_arc_mm=0.0)
 
 
-def test_an_arc_along_the_viewing_rays_is_refused():
+def test_an_arc_along_the_viewing_rays_is_refused(exact_views):
     camera = StereoCamera.default(640, 480)
     s = np.arange(0.0, 0.07, 5e-5)[:, None]
     across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
@@ -266,13 +258,11 @@ def test_an_arc_along_the_viewing_rays_is_refused():
     params = ReconstructionParams(**lenient)
     # A thread running across the viewing rays: its arc is about the length its image covers.
     flat = np.array([-0.03, -0.01, 0.09]) + s * across
-    result = reconstruct(
-        exact_sequence(camera, flat, "left"), exact_sequence(camera, flat, "right"), camera, params
-    )
+    result = reconstruct(*exact_views(camera, flat), camera, params)
     assert np.linalg.norm(result.grasp_position - flat[1000]) < 0.002
     # One 67 degrees out of the image plane: 50 mm of arc cover 20 mm of image.
     steep = np.array([-0.01, -0.01, 0.07]) + s * along
-    left, right = exact_sequence(camera, steep, "left"), exact_sequence(camera, steep, "right")
+    left, right = exact_views(camera, steep)
     reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
     with pytest.raises(ArcAlongViewError, match=r"2\.\d times the length its left image covers"):
         reconstruct(left, right, camera, params)
