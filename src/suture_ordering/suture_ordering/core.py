@@ -294,9 +294,8 @@ def order_stereo(
     ------
     OrderingError
         A subclass naming the view and the problem (see :func:`order_sequence`); also
-        :class:`InvalidInputError` when a mask's size differs from the camera's;
-        :class:`AmbiguousHookError` when the views go through a hook at the cut tip different
-        ways. With low masks, the masks' error when neither pair gives a sequence.
+        :class:`InvalidInputError` when a mask's size differs from the camera's. With low masks,
+        the masks' error when neither pair gives a sequence.
 
     Examples
     --------
