@@ -86,23 +86,31 @@ def clean_mask(
     return clean_binary(binary, scaled, zone_margin, pad, view)
 
 
+def fill_holes_remove_specks(binary: np.ndarray, max_hole_area: float, min_blob_extent: float = 0.0) -> None:
+    """Fill, in place, the holes of ``binary`` ((H, W) uint8 0/1) of at most ``max_hole_area`` px²
+    and remove its components whose bounding box is under ``min_blob_extent`` px both ways (0:
+    none), in one ``cv2.findContours`` pass (module docstring)."""
+    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    if hierarchy is None:
+        return
+    parents = hierarchy[0][:, 3].tolist()
+    # Each contour is drawn on its own (passing all of them to every call would convert
+    # them all each time: quadratic in the number of specks of a noisy mask).
+    for parent, contour in zip(parents, contours, strict=True):
+        if parent < 0:  # outer boundary of a component
+            _, _, w, h = cv2.boundingRect(contour)
+            if max(w, h) < min_blob_extent:
+                cv2.drawContours(binary, [contour], 0, 0, thickness=cv2.FILLED)
+        elif cv2.contourArea(contour) <= max_hole_area:  # a small hole
+            cv2.drawContours(binary, [contour], 0, 1, thickness=cv2.FILLED)
+
+
 def clean_binary(
     binary: np.ndarray, scaled: ScaledParams, zone_margin: int, pad: int, view: str | None = None
 ) -> CleanMask:
     """:func:`clean_mask` of a mask already checked by :func:`as_binary_mask` ((H, W) uint8 0/1,
     not empty), which is cleaned in place (pass a copy to keep it)."""
-    contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    if hierarchy is not None:
-        parents = hierarchy[0][:, 3].tolist()
-        # Each contour is drawn on its own (passing all of them to every call would convert
-        # them all each time: quadratic in the number of specks of a noisy mask).
-        for parent, contour in zip(parents, contours, strict=True):
-            if parent < 0:  # outer boundary of a component
-                _, _, w, h = cv2.boundingRect(contour)
-                if max(w, h) < scaled.min_blob_extent:
-                    cv2.drawContours(binary, [contour], 0, 0, thickness=cv2.FILLED)
-            elif cv2.contourArea(contour) <= scaled.max_hole_area:  # a small hole
-                cv2.drawContours(binary, [contour], 0, 1, thickness=cv2.FILLED)
+    fill_holes_remove_specks(binary, scaled.max_hole_area, scaled.min_blob_extent)
     if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError(
             f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view

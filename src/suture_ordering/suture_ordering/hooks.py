@@ -729,6 +729,10 @@ class Alternatives:
 
 @dataclass(frozen=True)
 class _Walked:
+    """What :func:`hook_walk` found: the walk's ``points`` (N, 2) float64 (u, v), whether it
+    ``revisits`` a node it passed, the ``alternatives`` that competed, and ``other_choice`` (see
+    :class:`HookStart`)."""
+
     points: np.ndarray
     revisits: bool
     alternatives: Alternatives

@@ -36,6 +36,7 @@ import math
 import cv2
 import numpy as np
 
+from suture_ordering.cleaning import fill_holes_remove_specks
 from suture_ordering.errors import UnexplainedTipError
 
 #: A mask pixel within this distance (px) of the sequence's polyline is always explained by it.
@@ -54,32 +55,54 @@ def unexplained_tip_pixels(
     reach of the filled stroke the sequence passes twice (:func:`_covered`; ``max_hole_area``:
     px², the largest hole the search's mask cleaning fills; 0: none)."""
     sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+    pixels = _off_sequence(mask, sequence, radius)
+    return _not_covered(mask, sequence, pixels, radius, max_hole_area)
+
+
+def _not_covered(
+    mask: np.ndarray, sequence: np.ndarray, pixels: np.ndarray, radius: float, max_hole_area: float
+) -> int:
+    """How many of ``pixels`` ((K, 2) int (u, v), from :func:`_off_sequence`) lie beyond the reach
+    of the filled stroke the sequence passes twice (all of them with ``max_hole_area`` 0)."""
+    if max_hole_area <= 0 or len(pixels) == 0:
+        return len(pixels)
+    return int(np.count_nonzero(~_covered(mask, sequence, pixels, radius + COVER_MARGIN, max_hole_area)))
+
+
+def _off_sequence(mask: np.ndarray, sequence: np.ndarray, radius: float) -> np.ndarray:
+    """(K, 2) int (u, v): the pixels of ``mask`` within ``radius`` px of ``sequence[0]`` ((N, 2)
+    float64) farther from the sequence's polyline than the thread's own pixels lie."""
+    none = np.zeros((0, 2), dtype=np.int64)
     if len(sequence) == 0:
-        return 0
-    height, width = mask.shape
+        return none
     tip = sequence[0]
-    r = math.ceil(radius) + 1
-    u0, v0 = max(0, round(float(tip[0])) - r), max(0, round(float(tip[1])) - r)
-    u1, v1 = min(width, round(float(tip[0])) + r + 1), min(height, round(float(tip[1])) + r + 1)
-    if u1 <= u0 or v1 <= v0:
-        return 0
-    window = (np.asarray(mask[v0:v1, u0:u1]) > 0).astype(np.uint8)
-    rows, cols = np.mgrid[v0:v1, u0:u1]
+    window, u0, v0 = _window(mask, tip, radius)
+    if window.size == 0:
+        return none
+    rows, cols = np.mgrid[v0 : v0 + window.shape[0], u0 : u0 + window.shape[1]]
     near = np.hypot(cols - tip[0], rows - tip[1]) <= radius
     if not (window & near).any():
-        return 0
+        return none
     local = np.rint(sequence - [u0, v0]).astype(np.int32)
     drawn = np.zeros_like(window)
     cv2.polylines(drawn, [local.reshape(-1, 1, 2)], False, 1, 1)
     if not drawn.any():
-        return 0
+        return none
     explained = _explained_distance(window, local)
     far = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > explained
     rows, cols = np.nonzero((window > 0) & near & far)
-    if max_hole_area <= 0 or len(rows) == 0:
-        return len(rows)
-    pixels = np.column_stack((cols + u0, rows + v0))
-    return int(np.count_nonzero(~_covered(mask, sequence, pixels, radius + COVER_MARGIN, max_hole_area)))
+    return np.column_stack((cols + u0, rows + v0)).astype(np.int64)
+
+
+def _window(mask: np.ndarray, tip: np.ndarray, radius: float) -> tuple[np.ndarray, int, int]:
+    """The square of ``mask`` (H, W) about ``tip`` ((2,) float (u, v)) that holds the disc of
+    ``radius`` px, clipped to the image, as uint8 0/1, and its top-left corner (u0, v0)."""
+    height, width = mask.shape
+    r = math.ceil(radius) + 1
+    u0, v0 = max(0, round(float(tip[0])) - r), max(0, round(float(tip[1])) - r)
+    u1, v1 = min(width, round(float(tip[0])) + r + 1), min(height, round(float(tip[1])) + r + 1)
+    window = (np.asarray(mask[v0 : max(v1, v0), u0 : max(u1, u0)]) > 0).astype(np.uint8)
+    return window, u0, v0
 
 
 def _covered(
@@ -91,22 +114,15 @@ def _covered(
     deepened the mask. (K,) bool. The filled mask is ``mask`` within ``radius`` px of the tip
     with its holes of at most ``max_hole_area`` px² filled, as the search's cleaning fills them;
     only the sequence's points from the tip until it first leaves ``radius`` count."""
-    height, width = mask.shape
     tip = sequence[0]
-    r = math.ceil(radius) + 1
-    u0, v0 = max(0, round(float(tip[0])) - r), max(0, round(float(tip[1])) - r)
-    u1, v1 = min(width, round(float(tip[0])) + r + 1), min(height, round(float(tip[1])) + r + 1)
-    window = (np.asarray(mask[v0:v1, u0:u1]) > 0).astype(np.uint8)
+    window, u0, v0 = _window(mask, tip, radius)
     filled = window.copy()
-    contours, hierarchy = cv2.findContours(filled, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
-    if hierarchy is not None:
-        for parent, contour in zip(hierarchy[0][:, 3].tolist(), contours, strict=True):
-            if parent >= 0 and cv2.contourArea(contour) <= max_hole_area:  # a small hole
-                cv2.drawContours(filled, [contour], 0, 1, thickness=cv2.FILLED)
+    fill_holes_remove_specks(filled, max_hole_area)
     beyond = np.flatnonzero(np.hypot(*(sequence - tip).T) > radius + 1.0)
     points = _dense(sequence[: beyond[0] + 1] if len(beyond) else sequence) - [u0, v0]
     cells = np.rint(points).astype(np.int64)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < u1 - u0) & (cells[:, 1] >= 0) & (cells[:, 1] < v1 - v0)
+    rows, cols = window.shape
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
     inside &= np.hypot(*(points - (tip - [u0, v0])).T) <= radius
     first = len(points) if inside.all() else int(np.argmin(inside))  # where it first leaves
     points, cells = points[:first], cells[:first]
@@ -174,9 +190,11 @@ def check_tip_explained(
     ``masks``: (left, right) (H, W); ``sequences``: (left, right) (N, 2) from the cut tip;
     ``max_hole_area``: px², the largest hole the ordering's mask cleaning fills."""
     for view, mask, sequence in zip(("left", "right"), masks, sequences, strict=True):
-        unexplained = unexplained_tip_pixels(mask, sequence, radius)
-        if unexplained > max_pixels and max_hole_area > 0:  # fewer, never more: only where it decides
-            unexplained = unexplained_tip_pixels(mask, sequence, radius, max_hole_area)
+        sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+        pixels = _off_sequence(mask, sequence, radius)
+        unexplained = len(pixels)
+        if unexplained > max_pixels:  # fewer, never more: worked out only where it decides
+            unexplained = _not_covered(mask, sequence, pixels, radius, max_hole_area)
         if unexplained > max_pixels:
             raise UnexplainedTipError(
                 f"{unexplained} px of thread within {radius:.0f} px of the cut tip lie off the ordered "
