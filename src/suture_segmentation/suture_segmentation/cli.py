@@ -56,6 +56,12 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
         help="ce (the paper), ce_dice, or ce_skeleton (plus skeleton recall)",
     )
     parser.add_argument(
+        "--skeleton-weight",
+        type=float,
+        default=defaults.skeleton_weight,
+        help="weight of the skeleton recall term of ce_skeleton (thicker strokes as it grows)",
+    )
+    parser.add_argument(
         "--photometric",
         action="store_true",
         help="vary colour, exposure, contrast, tone, focus and noise of the training crops",
@@ -133,6 +139,7 @@ def training_config(args: argparse.Namespace):  # -> TrainConfig
         crop=args.crop,
         learning_rate=args.lr,
         loss=args.loss,
+        skeleton_weight=args.skeleton_weight,
         photometric=args.photometric,
         augment=args.augment,
         seed=args.seed,

@@ -48,6 +48,7 @@ class TrainConfig:
         crop: crop side in pixels (multiple of 16).
         learning_rate: initial Adam learning rate (cosine decay to 5 % of it).
         loss: "ce" (the paper), "ce_dice" or "ce_skeleton" (:func:`segmentation_loss`).
+        skeleton_weight: weight of the skeleton recall term of "ce_skeleton".
         on_thread: fraction of crops centred on the thread.
         photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
         augment: warp and re-colour every batch with kornia
@@ -62,6 +63,7 @@ class TrainConfig:
     crop: int = 192
     learning_rate: float = 3e-3
     loss: str = "ce"
+    skeleton_weight: float = SKELETON_WEIGHT
     on_thread: float = 0.7
     photometric: bool = False
     augment: bool = False
@@ -71,6 +73,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; choose {' or '.join(LOSSES)}")
+        if self.skeleton_weight < 0:
+            raise ValueError(f"skeleton weight must be at least 0, got {self.skeleton_weight}")
         if self.crop % STRIDE or self.crop <= 0:
             raise ValueError(f"crop must be a positive multiple of {STRIDE}, got {self.crop}")
         if min(self.epochs, self.steps_per_epoch, self.batch_size) < 1:
@@ -88,7 +92,9 @@ def tubed_skeleton(labels: np.ndarray) -> np.ndarray:
     return tubes
 
 
-def segmentation_loss(logits: torch.Tensor, labels: torch.Tensor, loss: str) -> torch.Tensor:
+def segmentation_loss(
+    logits: torch.Tensor, labels: torch.Tensor, loss: str, skeleton_weight: float = SKELETON_WEIGHT
+) -> torch.Tensor:
     """Loss of (B, 2, H, W) logits against (B, H, W) int64 labels.
 
     "ce": the paper's cross-entropy. "ce_dice": plus one minus the soft Dice of the suture class
@@ -108,7 +114,7 @@ def segmentation_loss(logits: torch.Tensor, labels: torch.Tensor, loss: str) -> 
         suture = torch.softmax(logits, dim=1)[:, SUTURE]
         tube = torch.from_numpy(tubed_skeleton(labels.cpu().numpy())).to(logits.device)
         recall = ((suture * tube).sum() + 1.0) / (tube.sum() + 1.0)
-        value = value + SKELETON_WEIGHT * (1.0 - recall)
+        value = value + skeleton_weight * (1.0 - recall)
     return value
 
 
@@ -185,7 +191,9 @@ def train(
             if augmenter is not None:
                 images, labels = augment_batch(augmenter, images, labels, device)
             logits = model(torch.from_numpy(images).to(device))
-            loss = segmentation_loss(logits, torch.from_numpy(labels).to(device), config.loss)
+            loss = segmentation_loss(
+                logits, torch.from_numpy(labels).to(device), config.loss, config.skeleton_weight
+            )
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import shlex
 from pathlib import Path
@@ -12,7 +13,7 @@ import pytest
 import torch
 
 from suture_segmentation.checkpoint import SHIPPED, load_checkpoint, onnx_metadata
-from suture_segmentation.cli import main
+from suture_segmentation.cli import add_training_options, main, training_config
 from suture_segmentation.core import Segmenter
 from suture_segmentation.data import load_folder
 from suture_segmentation.model import SutureUNet
@@ -188,3 +189,16 @@ def test_skeleton_recall_loss_punishes_a_gap_across_the_thread_more_than_a_fraye
     skeleton = [segmentation_loss(x, truth, "ce_skeleton").item() for x in (gap, frayed)]
     assert ce[0] == pytest.approx(ce[1])  # cross-entropy cannot tell them apart
     assert skeleton[0] > skeleton[1] + 0.005
+    heavier = segmentation_loss(gap, truth, "ce_skeleton", skeleton_weight=0.3).item()
+    assert heavier - ce[0] == pytest.approx(3 * (skeleton[0] - ce[0]), rel=1e-4)  # the term scales
+    assert segmentation_loss(gap, truth, "ce_skeleton", skeleton_weight=0.0).item() == pytest.approx(ce[0])
+
+
+def test_training_options_carry_the_skeleton_weight_and_refuse_a_negative_one() -> None:
+    parser = argparse.ArgumentParser()
+    add_training_options(parser, epochs=3)
+    config = training_config(parser.parse_args(["--loss", "ce_skeleton", "--skeleton-weight", "0.03"]))
+    assert (config.loss, config.skeleton_weight) == ("ce_skeleton", 0.03)
+    assert training_config(parser.parse_args([])).skeleton_weight == TrainConfig().skeleton_weight == 0.1
+    with pytest.raises(ValueError, match="skeleton weight"):
+        TrainConfig(loss="ce_skeleton", skeleton_weight=-0.1)
