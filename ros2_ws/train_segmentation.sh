@@ -7,8 +7,6 @@
 # 1. simulated data (suture-sim --png-dir): 600 + 2000 legacy training images, 20 legacy
 #    validation images, 40 on-site fine-tuning images, and the two on-site test sets of 40 images
 #    each (Set 1: phantom backgrounds, Set 2: printed surgical scenes), all with different seeds;
-#    1200 legacy images of the hard topologies (hooks at the tip, wide occluders, threads along
-#    the rows) and 600 more of the paper's five, with 60 validation images of both;
 # 2. M-oST: every layer trained on the 600 legacy images, then continued twice (train --init)
 #    on the 2000 more (IoU on fresh legacy frames 0.815 -> 0.854; the first stage alone is the
 #    M-oST of the first Table I reproduction), then once more with --photometric (random white
@@ -19,15 +17,11 @@
 #    predicted no thread at all, IoU 0);
 #    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen,
 #    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 74.2 / 66.0);
-#    the shipped M-oST: the M-oST above (the paper's chain, which M-ToSOT and Table I use)
-#    continued on the hard topologies and the paper's five together, with the skeleton recall
-#    term at 0.03 (--loss ce_skeleton): it keeps the small loops and hooks at a cut tip that
-#    cross-entropy alone paints as a line or a blob (docs/experiments.md, 2026-11-27 morning);
 # 3. int8 ONNX exports of M-oST and M-ToSOT, calibrated on frames of their training domain;
 # 4. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
 #
 # On 2 CPU cores this takes about 120 minutes; with DEVICE=cuda a few minutes.
-# The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/last.pt,
+# The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt,
 # OUT/m_tosot/best.pt, OUT/m_ost_int8.onnx and OUT/m_tosot_int8.onnx of this script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -37,24 +31,11 @@ DEVICE=${DEVICE:-cpu}
 BIN=.venv/bin
 DATA=$OUT/data
 
-simulate() {  # name seed frames domain [background] [topology]
-    local name=$1 seed=$2 frames=$3 domain=$4 background=${5:-} topology=${6:-mixed}
+simulate() {  # name seed frames domain [background]
+    local name=$1 seed=$2 frames=$3 domain=$4 background=${5:-}
     [ -d "$DATA/$name/masks" ] && return
-    "$BIN/suture-sim" --topology "$topology" --frames "$frames" --domain "$domain" --seed "$seed" \
+    "$BIN/suture-sim" --topology mixed --frames "$frames" --domain "$domain" --seed "$seed" \
         ${background:+--background "$background"} --png-dir "$DATA/$name" --quiet
-}
-merge() {  # name folder... : one folder of links to the images and masks of the others
-    local name=$1 folder kind file
-    shift
-    [ -d "$DATA/$name/masks" ] && return
-    mkdir -p "$DATA/$name/images" "$DATA/$name/masks"
-    for folder in "$@"; do
-        for kind in images masks; do
-            for file in "$DATA/$folder/$kind"/*; do
-                ln -s "$(realpath "$file")" "$DATA/$name/$kind/${folder}_$(basename "$file")"
-            done
-        done
-    done
 }
 simulate legacy_train 3001 300 legacy
 simulate legacy_train_big 3003 1000 legacy
@@ -62,12 +43,6 @@ simulate legacy_val 3002 10 legacy
 simulate onsite_train 3101 20 on-site
 simulate onsite_set1 3201 20 on-site phantom
 simulate onsite_set2 3301 20 on-site printed
-simulate hard_train 9801 600 legacy "" hard
-simulate legacy_train_extra 9104 300 legacy
-simulate hard_val 9802 20 legacy "" hard
-simulate legacy_val_extra 9803 10 legacy
-merge legacy_hard_mix hard_train legacy_train_extra
-merge legacy_hard_val hard_val legacy_val_extra
 
 "$BIN/suture-seg" train --images "$DATA/legacy_train/images" --masks "$DATA/legacy_train/masks" \
     --val-images "$DATA/legacy_val/images" --val-masks "$DATA/legacy_val/masks" \
@@ -83,24 +58,20 @@ merge legacy_hard_val hard_val legacy_val_extra
 "$BIN/suture-seg" train --init "$OUT/m_ost_stage3/best.pt" --photometric \
     --images "$DATA/legacy_train_big/images" --masks "$DATA/legacy_train_big/masks" \
     --val-images "$DATA/legacy_val/images" --val-masks "$DATA/legacy_val/masks" \
-    --epochs 15 --steps-per-epoch 100 --lr 5e-4 --seed 7 --device "$DEVICE" --out "$OUT/m_ost_paper"
-"$BIN/suture-seg" train --init "$OUT/m_ost_paper/best.pt" --photometric --loss ce_skeleton --skeleton-weight 0.03 \
-    --images "$DATA/legacy_hard_mix/images" --masks "$DATA/legacy_hard_mix/masks" \
-    --val-images "$DATA/legacy_hard_val/images" --val-masks "$DATA/legacy_hard_val/masks" \
-    --epochs 10 --steps-per-epoch 80 --lr 3e-4 --seed 31 --threads 2 --device "$DEVICE" --out "$OUT/m_ost"
+    --epochs 15 --steps-per-epoch 100 --lr 5e-4 --seed 7 --device "$DEVICE" --out "$OUT/m_ost"
 "$BIN/suture-seg" train --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
     --epochs 30 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tot"
-"$BIN/suture-seg" finetune --weights "$OUT/m_ost_paper/best.pt" \
+"$BIN/suture-seg" finetune --weights "$OUT/m_ost/best.pt" \
     --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
     --epochs 30 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tosot"
 
-"$BIN/suture-seg" export --weights "$OUT/m_ost/last.pt" --int8 \
-    --calibration-images "$DATA/legacy_hard_mix/images" --out "$OUT/m_ost_int8.onnx"
+"$BIN/suture-seg" export --weights "$OUT/m_ost/best.pt" --int8 \
+    --calibration-images "$DATA/legacy_train_big/images" --out "$OUT/m_ost_int8.onnx"
 "$BIN/suture-seg" export --weights "$OUT/m_tosot/best.pt" --int8 \
     --calibration-images "$DATA/onsite_train/images" --out "$OUT/m_tosot_int8.onnx"
 
 "$BIN/suture-seg" evaluate \
-    --weights "M-oST=$OUT/m_ost_paper/best.pt,M-TOT=$OUT/m_tot/best.pt,M-ToSOT=$OUT/m_tosot/best.pt" \
+    --weights "M-oST=$OUT/m_ost/best.pt,M-TOT=$OUT/m_tot/best.pt,M-ToSOT=$OUT/m_tosot/best.pt" \
     --images "$DATA/onsite_set1/images" --masks "$DATA/onsite_set1/masks" \
     --images "$DATA/onsite_set2/images" --masks "$DATA/onsite_set2/masks" \
     --report "$OUT/report"
