@@ -34,7 +34,7 @@ from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, suture_probabi
 
 LOSSES = ("ce", "ce_dice", "ce_skeleton")
 SKELETON_WEIGHT = 0.1
-"""Weight of the skeleton recall term of ``ce_skeleton``; at 1 the models paint threads twice as thick."""
+"""Default weight of the skeleton recall term of ``ce_skeleton``; at 1 models paint threads twice as thick."""
 
 
 @dataclass
