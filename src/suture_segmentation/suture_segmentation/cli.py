@@ -62,6 +62,13 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
         help="weight of the skeleton recall term of ce_skeleton (thicker strokes as it grows)",
     )
     parser.add_argument(
+        "--structure-crops",
+        type=float,
+        default=defaults.structure_crops,
+        help="fraction of training crops centred on the thread's ends and junctions (cut tip, "
+        "crossings); part of the crops on the thread",
+    )
+    parser.add_argument(
         "--photometric",
         action="store_true",
         help="vary colour, exposure, contrast, tone, focus and noise of the training crops",
@@ -140,6 +147,7 @@ def training_config(args: argparse.Namespace):  # -> TrainConfig
         learning_rate=args.lr,
         loss=args.loss,
         skeleton_weight=args.skeleton_weight,
+        structure_crops=args.structure_crops,
         photometric=args.photometric,
         augment=args.augment,
         seed=args.seed,

@@ -50,6 +50,8 @@ class TrainConfig:
         loss: "ce" (the paper), "ce_dice" or "ce_skeleton" (:func:`segmentation_loss`).
         skeleton_weight: weight of the skeleton recall term of "ce_skeleton".
         on_thread: fraction of crops centred on the thread.
+        structure_crops: fraction of crops centred on the thread's ends and junctions (part of
+            ``on_thread``; :class:`~suture_segmentation.data.CropSampler`).
         photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
         augment: warp and re-colour every batch with kornia
             (:func:`~suture_segmentation.augment.make_augmenter`), after ``photometric``.
@@ -65,6 +67,7 @@ class TrainConfig:
     loss: str = "ce"
     skeleton_weight: float = SKELETON_WEIGHT
     on_thread: float = 0.7
+    structure_crops: float = 0.0
     photometric: bool = False
     augment: bool = False
     seed: int = 0
@@ -75,6 +78,10 @@ class TrainConfig:
             raise ValueError(f"unknown loss {self.loss!r}; choose {' or '.join(LOSSES)}")
         if self.skeleton_weight < 0:
             raise ValueError(f"skeleton weight must be at least 0, got {self.skeleton_weight}")
+        if not 0.0 <= self.structure_crops <= self.on_thread:
+            raise ValueError(
+                f"structure crops must be in [0, on_thread={self.on_thread}], got {self.structure_crops}"
+            )
         if self.crop % STRIDE or self.crop <= 0:
             raise ValueError(f"crop must be a positive multiple of {STRIDE}, got {self.crop}")
         if min(self.epochs, self.steps_per_epoch, self.batch_size) < 1:
@@ -157,7 +164,12 @@ def train(
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     sampler = CropSampler(
-        training, config.crop, config.on_thread, np.random.default_rng(config.seed), config.photometric
+        training,
+        config.crop,
+        config.on_thread,
+        np.random.default_rng(config.seed),
+        config.photometric,
+        config.structure_crops,
     )
     augmenter = None
     if config.augment:

@@ -11,7 +11,14 @@ import pytest
 
 from suture_segmentation.checkpoint import WeightsError, export_onnx, load_checkpoint
 from suture_segmentation.core import SegmentationInputError, Segmenter
-from suture_segmentation.data import CropSampler, DatasetError, load_folder, photometric_jitter
+from suture_segmentation.data import (
+    CropSampler,
+    DatasetError,
+    LabelledImages,
+    load_folder,
+    photometric_jitter,
+    structure_points,
+)
 
 
 def test_folder_loads_images_with_their_masks(line_folder: Path) -> None:
@@ -74,6 +81,45 @@ def test_photometric_jitter_spans_colour_tone_and_noise() -> None:
     assert np.ptp(means[:, 0] - means[:, 2]) > 10  # so does the colour
     assert max(float(look.std()) for look in looks) > 3  # and the noise
     assert all(look.dtype == np.float32 and look.min() >= 0 and look.max() <= 255 for look in looks)
+
+
+def _hooked_thread() -> np.ndarray:
+    """A 400 x 400 mask: a thread from the left edge whose end curls into a small closed loop."""
+    mask = np.zeros((400, 400), np.uint8)
+    cv2.line(mask, (0, 200), (300, 200), 1, 3)
+    cv2.circle(mask, (306, 194), 6, 1, 2)
+    return mask.astype(bool)
+
+
+def test_structure_points_are_the_ends_and_junctions_not_the_slanted_strokes() -> None:
+    slanted = np.zeros((120, 120), np.uint8)
+    cv2.line(slanted, (10, 20), (110, 57), 1, 3)  # a staircase skeleton: no junction on it
+    ends = np.column_stack(np.divmod(structure_points(slanted.astype(bool)), 120))
+    assert len(ends) == 2 and (np.abs(ends[:, 1] - 60) > 40).all()  # the two ends only
+    crossed = slanted.copy()
+    cv2.line(crossed, (60, 0), (60, 119), 1, 3)
+    rows, cols = np.divmod(structure_points(crossed.astype(bool)), 120)
+    assert len(rows) >= 5  # four ends and the crossing
+    assert (np.hypot(rows - 38, cols - 60) < 4).any()
+    hooked = structure_points(_hooked_thread())
+    rows, cols = np.divmod(hooked, 400)
+    assert (np.hypot(rows - 200, cols - 300) < 8).any()  # where the loop closes on the thread
+
+
+def test_structure_crops_hold_the_hook_at_the_tip() -> None:
+    mask = _hooked_thread()
+    image = np.where(mask[..., None], 40, 200).astype(np.uint8).repeat(3, axis=2)
+    data = LabelledImages(["hook.png"], [image], [mask])
+
+    def crops_holding_the_loop(structure: float) -> int:
+        sampler = CropSampler(data, 64, 1.0, np.random.default_rng(5), structure=structure)
+        labels = sampler.batch(200)[1]
+        # the loop is the only place where a crop's thread is more than a straight stroke wide
+        return int(sum(label.sum(axis=0).max() > 6 and label.sum(axis=1).max() > 6 for label in labels))
+
+    assert crops_holding_the_loop(1.0) > 2 * crops_holding_the_loop(0.0)
+    with pytest.raises(ValueError, match="structure must be in"):
+        CropSampler(data, 64, 0.5, np.random.default_rng(0), structure=0.6)
 
 
 def test_crops_larger_than_the_image_are_padded(line_folder: Path) -> None:

@@ -202,3 +202,12 @@ def test_training_options_carry_the_skeleton_weight_and_refuse_a_negative_one() 
     assert training_config(parser.parse_args([])).skeleton_weight == TrainConfig().skeleton_weight == 0.1
     with pytest.raises(ValueError, match="skeleton weight"):
         TrainConfig(loss="ce_skeleton", skeleton_weight=-0.1)
+
+
+def test_training_options_carry_the_structure_crops_within_the_crops_on_the_thread() -> None:
+    parser = argparse.ArgumentParser()
+    add_training_options(parser, epochs=3)
+    assert training_config(parser.parse_args(["--structure-crops", "0.35"])).structure_crops == 0.35
+    assert training_config(parser.parse_args([])).structure_crops == 0.0
+    with pytest.raises(ValueError, match="structure crops"):
+        TrainConfig(structure_crops=0.8, on_thread=0.7)
