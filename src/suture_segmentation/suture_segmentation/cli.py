@@ -4,7 +4,7 @@
 Sub-commands::
 
     suture-seg train     --images DIR --masks DIR --out DIR [--val-images DIR --val-masks DIR] ...
-    suture-seg finetune  --weights PT --images DIR --masks DIR --out DIR ...   (extractor frozen)
+    suture-seg finetune  --weights PT --images DIR --masks DIR --out DIR [--all-layers] ...
     suture-seg evaluate  --weights PT[,PT...] --images DIR --masks DIR [--report DIR] ...
     suture-seg export    --weights PT --out FILE.onnx [--int8 --calibration-images DIR]
     suture-seg bench     [--weights PT] [--backends onnx,torch] [--device cpu|cuda] ...
@@ -79,6 +79,12 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
         help="warp (rotation, scale, shear, perspective) and re-colour (colour, gamma, blur, noise) "
         "every training batch with kornia, image and mask alike",
     )
+    parser.add_argument(
+        "--all-layers",
+        action="store_true",
+        help="fine-tune every layer, the feature extractor too, instead of freezing it "
+        "(finetune and suture-fewshot; train always trains every layer)",
+    )
     parser.add_argument("--seed", type=int, default=defaults.seed)
     parser.add_argument("--threads", type=int, help="CPU threads (default: all)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
@@ -98,7 +104,9 @@ def _build_parser() -> argparse.ArgumentParser:
         "--init", help="continue from this checkpoint or shipped name (every layer trained; --widths ignored)"
     )
 
-    finetune = commands.add_parser("finetune", help="transfer: freeze the 13-layer extractor, train the rest")
+    finetune = commands.add_parser(
+        "finetune", help="transfer: freeze the 13-layer extractor, train the rest (--all-layers: every layer)"
+    )
     finetune.add_argument(
         "--weights", default="m_ost", help="checkpoint to start from (default: shipped M-oST)"
     )
@@ -150,6 +158,7 @@ def training_config(args: argparse.Namespace):  # -> TrainConfig
         structure_crops=args.structure_crops,
         photometric=args.photometric,
         augment=args.augment,
+        all_layers=args.all_layers,
         seed=args.seed,
         threads=args.threads,
     )

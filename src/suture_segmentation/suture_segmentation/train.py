@@ -55,6 +55,8 @@ class TrainConfig:
         photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
         augment: warp and re-colour every batch with kornia
             (:func:`~suture_segmentation.augment.make_augmenter`), after ``photometric``.
+        all_layers: :func:`finetune` trains the feature extractor too instead of freezing it
+            (:func:`train` always trains every layer).
         seed: seeds numpy and torch.
         threads: torch CPU threads (None: the default).
     """
@@ -70,6 +72,7 @@ class TrainConfig:
     structure_crops: float = 0.0
     photometric: bool = False
     augment: bool = False
+    all_layers: bool = False
     seed: int = 0
     threads: int | None = None
 
@@ -246,11 +249,13 @@ def finetune(
     device: str = "cpu",
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Transfer: load ``checkpoint``, freeze its feature extractor, train the rest (see :func:`train`).
+    """Transfer: load ``checkpoint``, freeze its feature extractor, train the rest (see :func:`train`);
+    with ``config.all_layers`` train every layer.
 
     ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_tosot"``).
     """
     model, source_meta = load_checkpoint(checkpoint, device)
-    model.freeze_feature_extractor()
+    if not config.all_layers:
+        model.freeze_feature_extractor()
     meta = {**(meta or {}), "finetuned_from": str(checkpoint), "source": source_meta.get("command")}
     return train(model, training, validation, config, out_dir, meta, device, progress)

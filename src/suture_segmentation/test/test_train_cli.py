@@ -164,6 +164,18 @@ def test_finetune_starts_from_the_shipped_m_ost_by_default(tmp_path: Path, make_
     _assert_same_extractor(shipped, tuned)
 
 
+def test_finetune_with_all_layers_trains_the_extractor_too(tmp_path: Path, make_folder) -> None:
+    folder = make_folder(tmp_path / "data", 2, seed=4)
+    args = ["finetune", "--images", str(folder / "images"), "--masks", str(folder / "masks")]
+    short = ["--epochs", "1", "--steps-per-epoch", "2", "--batch-size", "2", "--crop", "48", "--quiet"]
+    assert main([*args, "--all-layers", "--out", str(tmp_path / "b"), *short]) == 0
+    shipped, _ = load_checkpoint(SHIPPED["m_ost"])
+    tuned, meta = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert meta["finetuned_from"] == "m_ost" and meta["config"]["all_layers"] is True
+    with pytest.raises(AssertionError):
+        _assert_same_extractor(shipped, tuned)
+
+
 def _assert_same_extractor(source: SutureUNet, tuned: SutureUNet) -> None:
     """Fine-tuning left every tensor of the 13-layer extractor as it was."""
     tuned_state = tuned.feature_extractor.state_dict()
