@@ -133,6 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="order the masks alone, without the low masks (segmentation_node's low_threshold 0)",
     )
+    parser.add_argument(
+        "--no-flip-average",
+        action="store_true",
+        help="segment each image alone, not averaged with its mirror image (segmentation_node's "
+        "flip_average false)",
+    )
     args = parser.parse_args(argv)
     try:
         summary = evaluate(
@@ -144,6 +150,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             use_low_masks=not args.no_low_masks,
             report=args.report,
             max_overlays=args.max_overlays,
+            flip_average=not args.no_flip_average,
         )
         if args.json:
             with open(args.json, "w") as stream:

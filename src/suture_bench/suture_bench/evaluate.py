@@ -118,23 +118,28 @@ def evaluate(
     use_low_masks: bool = True,
     report: str | Path | None = None,
     max_overlays: int = 20,
+    flip_average: bool = True,
 ) -> dict:
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
     ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
     a shipped name, ``m_tosot`` or ``m_ost``); None is the stage's default (shipped M-ToSOT).
     ``use_images``: refine the 3D stage's disparity with the images; ``use_low_masks``: give the
-    ordering the low masks of the predicted masks (module docstring). ``report``: a folder for
-    the per-frame JSON and pictures (``suture_bench.report``), at most ``max_overlays`` overlays.
+    ordering the low masks of the predicted masks (module docstring); ``flip_average``: average
+    each image's suture probability with its mirror image's (segmentation_node's default).
+    ``report``: a folder for the per-frame JSON and pictures (``suture_bench.report``), at most
+    ``max_overlays`` overlays.
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
-    stages = _Stages(masks, sequences, seg_weights, use_images, use_low_masks)
+    stages = _Stages(masks, sequences, seg_weights, use_images, use_low_masks, flip_average)
     scoreboard = Scoreboard(ordering_ran=sequences == "predicted")
     if not use_images:
         scoreboard.tally.note("reconstruction: from the sequences alone (images not used)")
     if masks == "predicted" and not use_low_masks:
         scoreboard.tally.note("ordering: from the masks alone (low masks not used)")
+    if masks == "predicted" and not flip_average:
+        scoreboard.tally.note("segmentation: the images alone, not averaged with their mirror images")
     writer = None
     if report is not None:
         from suture_bench.report import ReportWriter
@@ -181,6 +186,7 @@ class _Stages:
         seg_weights: str | None,
         use_images: bool = True,
         use_low_masks: bool = True,
+        flip_average: bool = True,
     ) -> None:
         from suture_reconstruction.core import reconstruct
 
@@ -192,7 +198,8 @@ class _Stages:
             from suture_segmentation.core import LOW_THRESHOLD, Segmenter
 
             low_threshold = LOW_THRESHOLD if use_low_masks else None  # segmentation_node's default
-            self.segment = Segmenter(seg_weights, low_threshold=low_threshold).segment_pair_with_low
+            segmenter = Segmenter(seg_weights, low_threshold=low_threshold, flip_average=flip_average)
+            self.segment = segmenter.segment_pair_with_low
         if sequences == "predicted":
             from suture_ordering.core import order_stereo
 

@@ -23,7 +23,7 @@ def test_every_parameter_has_a_description_and_every_number_a_range(descriptions
     assert [d.entry.executable for d in descriptions] == [entry.executable for entry in NODES]
     counts = {d.entry.executable: len(d.parameters) for d in descriptions}
     assert counts == {
-        "segmentation_node": 11,
+        "segmentation_node": 12,
         "ordering_node": 41,
         "reconstruction_node": 23,
         "executor_node": 32,

@@ -24,6 +24,9 @@ from pathlib import Path
 from suture_segmentation.checkpoint import WeightsError
 
 DEFAULT_EPOCHS = {"train": 20, "finetune": 10}
+NO_FLIP_AVERAGE_HELP = (
+    "segment each image alone, not averaged with its mirror image (segmentation_node's flip_average false)"
+)
 
 
 def _training_arguments(parser: argparse.ArgumentParser, command: str) -> None:
@@ -120,6 +123,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "--set-names", help="names of the sets, comma-separated (default: Set 1, Set 2 ...)"
     )
     evaluate.add_argument("--threshold", type=float, default=0.5)
+    evaluate.add_argument("--no-flip-average", action="store_true", help=NO_FLIP_AVERAGE_HELP)
     evaluate.add_argument("--report", help="folder for table.md, scores.json, per-image plot and overlays")
 
     export = commands.add_parser("export", help="write an ONNX model")
@@ -140,6 +144,7 @@ def _build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--resolution", default="640x480", help="WxH")
     bench.add_argument("--pairs", type=int, default=30, help="timed stereo pairs per backend")
     bench.add_argument("--threads", type=int, help="CPU threads (default: all)")
+    bench.add_argument("--no-flip-average", action="store_true", help=NO_FLIP_AVERAGE_HELP)
     return parser
 
 
@@ -215,9 +220,10 @@ def _run_evaluate(args: argparse.Namespace) -> int:
     if len(set_names) != len(args.images):
         raise DatasetError("give one set name per --images")
     sets = {name: load_folder(i, m) for name, i, m in zip(set_names, args.images, args.masks, strict=True)}
-    results = evaluate_models(models, sets, args.threshold)
+    flip_average = not args.no_flip_average
+    results = evaluate_models(models, sets, args.threshold, flip_average)
     if args.report:
-        print(write_report(results, sets, args.report, models, args.threshold))
+        print(write_report(results, sets, args.report, models, args.threshold, flip_average))
     else:
         print(markdown_table(results))
     if args.report:
@@ -247,7 +253,15 @@ def _run_bench(args: argparse.Namespace) -> int:
 
     width, height = (int(v) for v in args.resolution.lower().split("x"))
     for backend in args.backends.split(","):
-        stats = benchmark(args.weights, backend, args.device, (width, height), args.pairs, args.threads)
+        stats = benchmark(
+            args.weights,
+            backend,
+            args.device,
+            (width, height),
+            args.pairs,
+            args.threads,
+            flip_average=not args.no_flip_average,
+        )
         print(
             f"{backend:6s} {args.device:5s} {width}x{height}: median {stats['median_ms']:.1f} ms, "
             f"p95 {stats['p95_ms']:.1f} ms per stereo pair "

@@ -4,10 +4,11 @@
 This is the ROS-free entry point that ``segmentation_node`` and ``suture-eval`` both call.
 
 * :class:`Segmenter` holds one loaded model; :meth:`Segmenter.segment_pair` runs a stereo pair
-  as one batch of two; :meth:`Segmenter.segment_pair_with_low` also gives the pair's low masks
+  as one batch (of four by default: each view and its mirror image, whose probabilities are
+  averaged); :meth:`Segmenter.segment_pair_with_low` also gives the pair's low masks
   (hysteresis down to ``low_threshold``), which the node graph publishes for the ordering stage.
-* :func:`segment_stereo` is the same with the shipped M-ToSOT weights on the CPU (ONNX Runtime),
-  loaded once per process.
+* :func:`segment_stereo` is the same with the shipped M-ToSOT (its int8 export on ONNX Runtime,
+  CPU), loaded once per process.
 
 Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; masks are (H, W) uint8, 0 or 255. Both
 backends give the same masks up to pixels whose suture probability is within about 1e-4 of
@@ -33,6 +34,9 @@ BACKENDS = ("onnx", "torch")
 #: thread whole. It serves the low masks only: as the mask threshold itself it would widen every
 #: mask and move the centrelines traced on them.
 LOW_THRESHOLD = 0.3
+#: The shipped M-ToSOT that ``weights=None`` loads on ONNX Runtime on the CPU: its int8 export,
+#: twice as fast as the float model, so that the default flip averaging keeps its cost.
+DEFAULT_CPU_WEIGHTS = "m_tosot_int8"
 
 
 class SegmentationInputError(ValueError):
@@ -52,7 +56,9 @@ class Segmenter:
         A ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx`` file
         (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_tosot"``/``"m_general"``
         (or their int8 ONNX exports ``"m_ost_int8"``/``"m_tosot_int8"``/``"m_general_int8"``) for a
-        shipped model, or None for the shipped M-ToSOT.
+        shipped model, or None for the shipped M-ToSOT: its int8 export with the ONNX backend on
+        the CPU (with ``flip_average``, the two fit 150 ms per 640×480 pair on 2 cores), the
+        float model otherwise.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
     device : str
@@ -68,6 +74,11 @@ class Segmenter:
         The lower threshold of the *low masks* (:meth:`segment_pair_with_low`): pixels above it
         that connect to a pixel above ``threshold`` (hysteresis), in (0, threshold]; None: no
         low masks.
+    flip_average : bool
+        Average the suture probability of each image with that of its mirror image (flipped
+        left to right, run in the same batch, flipped back). It about doubles the inference
+        time; the model's errors on a noisy camera differ between the two, and fewer survive
+        the average: fewer broken threads and false positives (``docs/results.md``).
 
     Raises
     ------
@@ -110,6 +121,7 @@ class Segmenter:
         input_size: tuple[int, int] | None = None,
         threads: int | None = None,
         low_threshold: float | None = LOW_THRESHOLD,
+        flip_average: bool = True,
     ) -> None:
         if backend not in BACKENDS:
             raise ValueError(f"unknown backend {backend!r}; choose {' or '.join(BACKENDS)}")
@@ -125,7 +137,10 @@ class Segmenter:
             raise ValueError("device cuda requested but torch sees no CUDA GPU")
         self.backend, self.device, self.threshold = backend, device, float(threshold)
         self.low_threshold = None if low_threshold is None else float(low_threshold)
+        self.flip_average = bool(flip_average)
         self.input_size = tuple(int(v) for v in input_size) if input_size is not None else None
+        if not weights and backend == "onnx" and device == "cpu":
+            weights = DEFAULT_CPU_WEIGHTS
         self.weights = resolve_weights(weights)
         if backend == "torch":
             if threads:
@@ -164,18 +179,27 @@ class Segmenter:
 
     def probabilities(self, images: list[np.ndarray]) -> np.ndarray:
         """(B, H, W) float32 suture probability of equally sized images (one batch)."""
+        batch = image_array(images)
+        if not self.flip_average:
+            return self._batch_probabilities(batch)
+        count = len(batch)
+        suture = self._batch_probabilities(np.concatenate([batch, batch[..., ::-1]]))
+        return (suture[:count] + suture[count:, :, ::-1]) * np.float32(0.5)
+
+    def _batch_probabilities(self, batch: np.ndarray) -> np.ndarray:
+        """(B, H, W) float32 suture probability of a (B, 3, H, W) float32 batch."""
         if self.backend == "onnx" and self.input_size is None:
-            return self._onnx_probabilities(image_array(images))
-        batch = image_batch(images)
-        height, width = batch.shape[-2:]
+            return self._onnx_probabilities(batch)
+        tensor = torch.from_numpy(batch)
+        height, width = tensor.shape[-2:]
         if self.input_size is not None and (width, height) != self.input_size:
-            batch = functional.interpolate(
-                batch, size=self.input_size[::-1], mode="bilinear", align_corners=False
+            tensor = functional.interpolate(
+                tensor, size=self.input_size[::-1], mode="bilinear", align_corners=False
             )
         if self.backend == "torch":
-            suture = suture_probability(self._model, batch.to(self.device)).cpu()
+            suture = suture_probability(self._model, tensor.to(self.device)).cpu()
         else:
-            padded, (h, w) = pad_to_multiple(batch)
+            padded, (h, w) = pad_to_multiple(tensor)
             (logits,) = self._session.run(["logits"], {"image": padded.numpy()})
             suture = torch.softmax(torch.from_numpy(logits), dim=1)[:, SUTURE, :h, :w]
         if suture.shape[-2:] != (height, width):

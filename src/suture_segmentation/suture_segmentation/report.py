@@ -55,12 +55,19 @@ Results = dict[str, dict[str, list[MaskScores]]]
 
 
 def evaluate_models(
-    models: dict[str, str | Path], sets: dict[str, LabelledImages], threshold: float = 0.5
+    models: dict[str, str | Path],
+    sets: dict[str, LabelledImages],
+    threshold: float = 0.5,
+    flip_average: bool = True,
 ) -> Results:
-    """Per-image scores of every model (name -> weights) on every set (name -> images)."""
+    """Per-image scores of every model (name -> weights) on every set (name -> images).
+
+    ``threshold`` and ``flip_average`` as in :class:`Segmenter` (its defaults: what the node
+    publishes).
+    """
     results: Results = {name: {} for name in sets}
     for model_name, weights in models.items():
-        segmenter = scoring_segmenter(weights, threshold)
+        segmenter = scoring_segmenter(weights, threshold, flip_average)
         for set_name, data in sets.items():
             results[set_name][model_name] = [
                 score_mask(segmenter.segment([image])[0], mask)
@@ -69,10 +76,10 @@ def evaluate_models(
     return results
 
 
-def scoring_segmenter(weights: str | Path, threshold: float) -> Segmenter:
+def scoring_segmenter(weights: str | Path, threshold: float, flip_average: bool = True) -> Segmenter:
     """PyTorch for a checkpoint (the reference), ONNX Runtime for an ``.onnx`` file (e.g. int8)."""
     backend = "onnx" if resolve_weights(weights).suffix == ".onnx" else "torch"
-    return Segmenter(weights, backend=backend, threshold=threshold)
+    return Segmenter(weights, backend=backend, threshold=threshold, flip_average=flip_average)
 
 
 def markdown_table(results: Results) -> str:
@@ -108,6 +115,7 @@ def write_report(
     folder: str | Path,
     models: dict[str, str | Path] | None = None,
     threshold: float = 0.5,
+    flip_average: bool = True,
 ) -> str:
     """Write table.md, scores.json, per_image.png and (with ``models``) one overlays PNG per set.
 
@@ -143,7 +151,7 @@ def write_report(
             middle = len(order) // 2
             typical = sorted({int(order[middle]), int(order[max(middle - 1, 0)])})
             slug = set_name.lower().replace(" ", "")
-            write_overlays(models, data, typical, folder / f"overlays_{slug}.png", threshold)
+            write_overlays(models, data, typical, folder / f"overlays_{slug}.png", threshold, flip_average)
     return table
 
 
@@ -190,9 +198,10 @@ def write_overlays(
     indices: list[int],
     path: str | Path,
     threshold: float = 0.5,
+    flip_average: bool = True,
 ) -> Path:
     """A grid (rows: images, columns: input then each model) of :func:`overlay` images."""
-    segmenters = {name: scoring_segmenter(w, threshold) for name, w in models.items()}
+    segmenters = {name: scoring_segmenter(w, threshold, flip_average) for name, w in models.items()}
     rows = []
     for i in indices:
         tiles = [data.images[i]]
@@ -214,11 +223,13 @@ def benchmark(
     resolution: tuple[int, int],
     pairs: int,
     threads: int | None = None,
+    flip_average: bool = True,
 ) -> dict[str, Any]:
-    """Median and 95th-percentile milliseconds per stereo pair (one batch of two) after warm-up."""
+    """Median and 95th-percentile milliseconds per stereo pair after warm-up (one batch: the two
+    views, and with ``flip_average`` their mirror images)."""
     import torch
 
-    segmenter = Segmenter(weights, backend=backend, device=device, threads=threads)
+    segmenter = Segmenter(weights, backend=backend, device=device, threads=threads, flip_average=flip_average)
     width, height = resolution
     rng = np.random.default_rng(0)
     left = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)

@@ -7,14 +7,17 @@ the newest, so that a node slower than the camera segments the current frame, no
 stale ones), pairs them by exact ``header.stamp``
 (:class:`suture_common.stamp_buffer.StampPairBuffer`), segments both views as one batch and
 publishes ``/suture/left/mask`` and ``/suture/right/mask`` (sensor_msgs/Image mono8, 0 or 255,
-the header of the input image of that side, sensor-data QoS). bgr8 images are reordered to RGB
+the header of the input image of that side, sensor-data QoS). By default each view's suture
+probability is the mean of the model's on the image and on its mirror image
+(``flip_average``). bgr8 images are reordered to RGB
 before they reach the model; mono8 images are segmented as grey. Just before them it publishes
 the pair's *low masks*, ``/suture/{left,right}/mask_low`` (the same format: the mask plus the
 pixels above ``low_threshold`` connected to it, :meth:`Segmenter.segment_pair_with_low`), which
 ordering_node follows where the thread is faint; ``low_threshold`` 0 publishes none.
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped M-ToSOT
-model (``suture_segmentation/weights/m_tosot.pt``); "m_ost"/"m_tosot"/"m_general" name a shipped
+model: its int8 export (``suture_segmentation/weights/m_tosot_int8.onnx``) with the onnx backend
+on the CPU, ``m_tosot.pt`` otherwise; "m_ost"/"m_tosot"/"m_general" name a shipped
 model and "m_ost_int8"/"m_tosot_int8"/"m_general_int8" its int8 ONNX export (backend onnx);
 anything else is a ``.pt`` checkpoint or an ``.onnx`` file. ``m_general`` (trained on
 domain-randomised frames) is meant for a camera that none of the models has seen.
@@ -90,6 +93,12 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
             (0.0, 1.0),
         ),
         ParameterSpec(
+            "flip_average",
+            True,
+            "average each image's suture probability with its mirror image's (about twice the "
+            "inference time; fewer broken threads and false positives on a noisy camera)",
+        ),
+        ParameterSpec(
             "input_width",
             0,
             "width the images are resized to for inference (0 with input_height 0: own size)",
@@ -149,6 +158,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             input_size=input_size,
             threads=threads or None,
             low_threshold=float(values["low_threshold"]) or None,  # 0: no low masks
+            flip_average=bool(values["flip_average"]),
         )
     except WeightsError as exc:
         hint = "" if weights else " (the shipped M-ToSOT; set the parameter weights to a .pt or .onnx file)"

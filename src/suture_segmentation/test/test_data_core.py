@@ -154,6 +154,24 @@ def test_onnx_and_torch_backends_give_the_same_masks(random_checkpoint: Path, pa
     assert np.abs(Segmenter(onnx_file).probabilities(list(pair)) - p_onnx).max() < 1e-5
 
 
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_flip_average_is_the_mean_of_an_image_and_its_mirror_image(
+    random_checkpoint: Path, pair, backend: str
+) -> None:
+    images = list(pair)
+    mirrored = [np.ascontiguousarray(image[:, ::-1]) for image in images]
+    plain = Segmenter(random_checkpoint, backend=backend, flip_average=False)
+    averaged = Segmenter(random_checkpoint, backend=backend).probabilities(images)
+    expected = (plain.probabilities(images) + plain.probabilities(mirrored)[..., ::-1]) / 2
+    assert averaged.shape == (2, 50, 70) and averaged.dtype == np.float32
+    assert np.abs(averaged - expected).max() < 1e-5
+    # so the masks do not depend on which way round the camera sees the scene, which the plain
+    # model's do (random weights: far from mirror-symmetric)
+    assert np.abs(plain.probabilities(mirrored)[..., ::-1] - plain.probabilities(images)).max() > 1e-3
+    averaged_mirrored = Segmenter(random_checkpoint, backend=backend).probabilities(mirrored)
+    assert np.abs(averaged_mirrored[..., ::-1] - averaged).max() < 1e-5
+
+
 def test_onnx_worker_threads_sleep_when_idle(random_checkpoint: Path) -> None:
     # spinning threads took the CPU of the other nodes on 2 cores (README, "Node graph latency")
     options = Segmenter(random_checkpoint, backend="onnx")._session.get_session_options()
