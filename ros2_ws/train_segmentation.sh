@@ -70,7 +70,8 @@ simulate onsite_set2 3301 20 on-site printed
 "$BIN/suture-seg" export --weights "$OUT/m_tosot/best.pt" --int8 \
     --calibration-images "$DATA/onsite_train/images" --out "$OUT/m_tosot_int8.onnx"
 
-"$BIN/suture-seg" evaluate \
+# --no-flip-average: one pass per image, as in the paper's Table I
+"$BIN/suture-seg" evaluate --no-flip-average \
     --weights "M-oST=$OUT/m_ost/best.pt,M-TOT=$OUT/m_tot/best.pt,M-ToSOT=$OUT/m_tosot/best.pt" \
     --images "$DATA/onsite_set1/images" --masks "$DATA/onsite_set1/masks" \
     --images "$DATA/onsite_set2/images" --masks "$DATA/onsite_set2/masks" \

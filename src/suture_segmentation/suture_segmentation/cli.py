@@ -138,7 +138,10 @@ def _build_parser() -> argparse.ArgumentParser:
     export.add_argument("--calibration-count", type=int, default=16, help="calibration frames used (spread)")
 
     bench = commands.add_parser("bench", help="milliseconds per stereo pair for each backend")
-    bench.add_argument("--weights", default="m_tosot")
+    bench.add_argument(
+        "--weights",
+        help="default: the node's (M-ToSOT: its int8 export with onnx on the CPU, the float model otherwise)",
+    )
     bench.add_argument("--backends", default="onnx,torch")
     bench.add_argument("--device", default="cpu", help="cpu or cuda")
     bench.add_argument("--resolution", default="640x480", help="WxH")
@@ -263,8 +266,8 @@ def _run_bench(args: argparse.Namespace) -> int:
             flip_average=not args.no_flip_average,
         )
         print(
-            f"{backend:6s} {args.device:5s} {width}x{height}: median {stats['median_ms']:.1f} ms, "
-            f"p95 {stats['p95_ms']:.1f} ms per stereo pair "
+            f"{backend:6s} {args.device:5s} {width}x{height} {stats['weights']}: "
+            f"median {stats['median_ms']:.1f} ms, p95 {stats['p95_ms']:.1f} ms per stereo pair "
             f"({stats['pairs']} pairs, {stats['threads']} threads)"
         )
     return 0

@@ -247,5 +247,6 @@ def benchmark(
         "median_ms": float(np.median(times)),
         "p95_ms": float(np.percentile(times, 95)),
         "pairs": pairs,
+        "weights": segmenter.weights.name,
         "threads": threads or (torch.get_num_threads() if backend == "torch" else "default"),
     }
