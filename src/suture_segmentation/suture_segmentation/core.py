@@ -178,7 +178,8 @@ class Segmenter:
             raise WeightsError(f"{self.weights} is not a loadable ONNX model ({error})") from error
 
     def probabilities(self, images: list[np.ndarray]) -> np.ndarray:
-        """(B, H, W) float32 suture probability of equally sized images (one batch)."""
+        """(B, H, W) float32 suture probability of equally sized images (one batch; with
+        ``flip_average`` the mean of each image's and its mirror image's)."""
         batch = image_array(images)
         if not self.flip_average:
             return self._batch_probabilities(batch)
