@@ -7,8 +7,13 @@ any mask pixel never leave the array. Cleaning uses one ``cv2.findContours``
 pass (outer contours and holes, about 0.1 ms for a 640x480 mask):
 
 * holes (background enclosed by the mask) of at most ``max_hole_area`` px² are
-  filled: segmentation dropouts inside a thick thread or at a crossing;
-  a loop's interior is far larger and is kept;
+  filled: segmentation dropouts inside a thick thread or at a crossing, and the
+  slit a pixel wide between the merged arms of a hairpin; a loop's interior is
+  far larger and is kept, and so is a small hole that holds a square of
+  background ``min_eye_width`` px wide: the eye of a small loop, typically at the
+  bend of a hairpin at the cut tip. Filled, the eye becomes a blob that the
+  search enters and leaves, and the sequence misses the loop's arc (5-7 mm for
+  an eye 3 px across at 640x480), so the grasp lands that much too far along;
 * components whose bounding box is smaller than ``min_blob_extent`` px in both
   directions are removed: specks that are no thread.
 
@@ -86,10 +91,13 @@ def clean_mask(
     return clean_binary(binary, scaled, zone_margin, pad, view)
 
 
-def fill_holes_remove_specks(binary: np.ndarray, max_hole_area: float, min_blob_extent: float = 0.0) -> None:
+def fill_holes_remove_specks(
+    binary: np.ndarray, max_hole_area: float, min_blob_extent: float = 0.0, min_eye_width: int = 0
+) -> None:
     """Fill, in place, the holes of ``binary`` ((H, W) uint8 0/1) of at most ``max_hole_area`` px²
-    and remove its components whose bounding box is under ``min_blob_extent`` px both ways (0:
-    none), in one ``cv2.findContours`` pass (module docstring)."""
+    except those that hold a square of background ``min_eye_width`` px wide (0: none kept), and
+    remove its components whose bounding box is under ``min_blob_extent`` px both ways (0: none),
+    in one ``cv2.findContours`` pass (module docstring)."""
     contours, hierarchy = cv2.findContours(binary, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
     if hierarchy is None:
         return
@@ -101,8 +109,33 @@ def fill_holes_remove_specks(binary: np.ndarray, max_hole_area: float, min_blob_
             _, _, w, h = cv2.boundingRect(contour)
             if max(w, h) < min_blob_extent:
                 cv2.drawContours(binary, [contour], 0, 0, thickness=cv2.FILLED)
-        elif cv2.contourArea(contour) <= max_hole_area:  # a small hole
+        elif cv2.contourArea(contour) <= max_hole_area and not _is_eye(binary, contour, min_eye_width):
             cv2.drawContours(binary, [contour], 0, 1, thickness=cv2.FILLED)
+
+
+def _is_eye(binary: np.ndarray, hole: np.ndarray, width: int) -> bool:
+    """Whether the hole inside the contour ``hole`` (of ``binary``, (H, W) uint8 0/1) is the eye
+    of a loop: it holds a ``width`` x ``width`` square of background, and the mask round it (within
+    ``2 * width`` px) is at most 2 px thicker than the hole is wide, as a loop of thread is round
+    its eye; a dropout inside a thick stroke is not (False for ``width`` 0)."""
+    if width <= 0:
+        return False
+    x, y, w, h = cv2.boundingRect(hole)
+    if min(w, h) < width + 2:  # the contour runs on the mask round the hole
+        return False
+    reach = 2 * width
+    margin = 2 * reach + 2  # the stroke's depth is measured clear of the window's edge
+    x0, y0 = max(0, x - margin), max(0, y - margin)
+    window = binary[y0 : y + h + margin, x0 : x + w + margin]
+    inside = np.zeros(window.shape, dtype=np.uint8)
+    cv2.drawContours(inside, [hole], 0, 1, thickness=cv2.FILLED, offset=(-x0, -y0))
+    background = inside & (window == 0)
+    if not cv2.erode(background, np.ones((width, width), np.uint8)).any():
+        return False
+    hole_depth = cv2.distanceTransform(background, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).max()
+    ring = cv2.dilate(background, np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) & window
+    stroke_depth = cv2.distanceTransform(window, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[ring > 0].max()
+    return bool(stroke_depth <= hole_depth + 1.0)
 
 
 def clean_binary(
@@ -110,7 +143,7 @@ def clean_binary(
 ) -> CleanMask:
     """:func:`clean_mask` of a mask already checked by :func:`as_binary_mask` ((H, W) uint8 0/1,
     not empty), which is cleaned in place (pass a copy to keep it)."""
-    fill_holes_remove_specks(binary, scaled.max_hole_area, scaled.min_blob_extent)
+    fill_holes_remove_specks(binary, scaled.max_hole_area, scaled.min_blob_extent, scaled.min_eye_width)
     if cv2.countNonZero(binary) == 0:
         raise EmptyMaskError(
             f"mask holds only specks smaller than {scaled.min_blob_extent:.0f} px: no thread", view

@@ -337,8 +337,11 @@ def order_stereo(
     if radius > 0:
         max_pixels = params.tip_unexplained_max_px * params.scale_for(camera.width) ** 2
         explained = low_masks if low_masks is not None else (left_mask, right_mask)
-        max_hole_area = _scaled_params(params, camera.width).max_hole_area
-        check_tip_explained(explained, (ordering.left, ordering.right), radius, max_pixels, max_hole_area)
+        scaled = _scaled_params(params, camera.width)
+        sequences = (ordering.left, ordering.right)
+        check_tip_explained(
+            explained, sequences, radius, max_pixels, scaled.max_hole_area, scaled.min_eye_width
+        )
     return ordering
 
 

@@ -239,6 +239,17 @@ class OrderingParams:
             (0.0, 640.0 * 480.0),
         ),
     )
+    min_eye_width_px: float = field(
+        default=1.5,
+        metadata=described(
+            "a hole of at most max_hole_area_px that holds a square of background this wide, in thread "
+            "at most 2 px thicker than the hole is wide, is kept, not filled: the eye of a small loop "
+            "(the bend of a hairpin at the cut tip), which the "
+            "sequence must go round to measure the arc to the grasp point (px at 640 px width, scaled "
+            "with the width; 0: every such hole is filled)",
+            (0.0, 640.0),
+        ),
+    )
     min_blob_extent_px: float = field(
         default=5.0,
         metadata=described(
@@ -369,8 +380,10 @@ class OrderingParams:
             raise ValueError(
                 f"OrderingParams.tip_gap_max_angle must be in (0, pi], got {self.tip_gap_max_angle!r}"
             )
-        if self.max_hole_area_px < 0:
-            raise ValueError(f"OrderingParams.max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
+        for name in ("max_hole_area_px", "min_eye_width_px"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"OrderingParams.{name} must be >= 0, got {value!r}")
         if int(self.max_steps) != self.max_steps or self.max_steps < 1:
             raise ValueError(f"OrderingParams.max_steps must be a positive integer, got {self.max_steps}")
         if self.reference_width_px is not None and not self.reference_width_px > 0:
@@ -404,6 +417,7 @@ class ScaledParams:
     tip_radius: float
     tip_gap_max: float
     max_hole_area: float
+    min_eye_width: int
     min_blob_extent: float
     row_tolerance: float
     scale: float
@@ -423,6 +437,7 @@ class ScaledParams:
             tip_radius=params.tip_radius_px * s,
             tip_gap_max=params.tip_gap_max_px * s,
             max_hole_area=params.max_hole_area_px * s * s,
+            min_eye_width=max(1, round(params.min_eye_width_px * s)) if params.min_eye_width_px > 0 else 0,
             min_blob_extent=params.min_blob_extent_px * s,
             row_tolerance=params.row_tolerance_px * s,
             scale=s,

@@ -16,9 +16,10 @@ there (the segmenter often keeps the loop's far side as a separate fragment). An
 passing that close to the tip counts too: the ordering then refuses, the safe side.
 
 Where the hook at the tip is so tight that the mask cleaning filled its holes (the slit a pixel
-wide between merged arms, the small eye of a loop: ``max_hole_area``), the walk through the hook
-goes down the filled stroke's middle and back, or into the filled eye and back, and the arms'
-outer pixels, or the loop's rim, lie a little farther from it than one thread's half width. Those
+wide between merged arms, the eye of a loop too small to keep open: ``max_hole_area``,
+``min_eye_width``), the walk through the hook goes down the filled stroke's middle and back, or
+into the filled eye and back, and the arms' outer pixels, or the loop's rim, lie a little farther
+from it than one thread's half width. Those
 pixels are explained where the sequence passes twice, before it first leaves the tip's
 neighbourhood (:func:`_doubled`), and where the filling widened the stroke at the sequence's
 point: within 1 px more than that point's distance to the filled mask's edge (the discs about a
@@ -47,26 +48,37 @@ COVER_MARGIN = 8
 
 
 def unexplained_tip_pixels(
-    mask: np.ndarray, sequence: np.ndarray, radius: float, max_hole_area: float = 0.0
+    mask: np.ndarray,
+    sequence: np.ndarray,
+    radius: float,
+    max_hole_area: float = 0.0,
+    min_eye_width: int = 0,
 ) -> int:
     """Pixels of ``mask`` (H, W; nonzero: thread) within ``radius`` px of ``sequence[0]``
     ((N, 2) float (u, v), the ordered centreline from the tip) farther from the sequence's
     polyline than the thread's own pixels lie (:func:`_explained_distance`) and not within the
     reach of the filled stroke the sequence passes twice (:func:`_covered`; ``max_hole_area``:
-    px², the largest hole the search's mask cleaning fills; 0: none)."""
+    px², the largest hole the search's mask cleaning fills; 0: none; ``min_eye_width``: px, the
+    width of a square of background that keeps a hole open, as in the cleaning)."""
     sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
     pixels = _off_sequence(mask, sequence, radius)
-    return _not_covered(mask, sequence, pixels, radius, max_hole_area)
+    return _not_covered(mask, sequence, pixels, radius, max_hole_area, min_eye_width)
 
 
 def _not_covered(
-    mask: np.ndarray, sequence: np.ndarray, pixels: np.ndarray, radius: float, max_hole_area: float
+    mask: np.ndarray,
+    sequence: np.ndarray,
+    pixels: np.ndarray,
+    radius: float,
+    max_hole_area: float,
+    min_eye_width: int = 0,
 ) -> int:
     """How many of ``pixels`` ((K, 2) int (u, v), from :func:`_off_sequence`) lie beyond the reach
     of the filled stroke the sequence passes twice (all of them with ``max_hole_area`` 0)."""
     if max_hole_area <= 0 or len(pixels) == 0:
         return len(pixels)
-    return int(np.count_nonzero(~_covered(mask, sequence, pixels, radius + COVER_MARGIN, max_hole_area)))
+    covered = _covered(mask, sequence, pixels, radius + COVER_MARGIN, max_hole_area, min_eye_width)
+    return int(np.count_nonzero(~covered))
 
 
 def _off_sequence(mask: np.ndarray, sequence: np.ndarray, radius: float) -> np.ndarray:
@@ -106,18 +118,24 @@ def _window(mask: np.ndarray, tip: np.ndarray, radius: float) -> tuple[np.ndarra
 
 
 def _covered(
-    mask: np.ndarray, sequence: np.ndarray, pixels: np.ndarray, radius: float, max_hole_area: float
+    mask: np.ndarray,
+    sequence: np.ndarray,
+    pixels: np.ndarray,
+    radius: float,
+    max_hole_area: float,
+    min_eye_width: int = 0,
 ) -> np.ndarray:
     """Which ``pixels`` ((K, 2) int (u, v) of ``mask`` (H, W)) lie within 1 px more than the
     filled mask's depth (the distance to its edge) of a point of ``sequence`` ((N, 2) float
     (u, v) from the tip) that the sequence passes twice (:func:`_doubled`) and where filling
     deepened the mask. (K,) bool. The filled mask is ``mask`` within ``radius`` px of the tip
-    with its holes of at most ``max_hole_area`` px² filled, as the search's cleaning fills them;
+    with its holes of at most ``max_hole_area`` px² filled but the eyes ``min_eye_width`` px wide,
+    as the search's cleaning fills them;
     only the sequence's points from the tip until it first leaves ``radius`` count."""
     tip = sequence[0]
     window, u0, v0 = _window(mask, tip, radius)
     filled = window.copy()
-    fill_holes_remove_specks(filled, max_hole_area)
+    fill_holes_remove_specks(filled, max_hole_area, min_eye_width=min_eye_width)
     beyond = np.flatnonzero(np.hypot(*(sequence - tip).T) > radius + 1.0)
     points = _dense(sequence[: beyond[0] + 1] if len(beyond) else sequence) - [u0, v0]
     cells = np.rint(points).astype(np.int64)
@@ -184,17 +202,19 @@ def check_tip_explained(
     radius: float,
     max_pixels: float,
     max_hole_area: float = 0.0,
+    min_eye_width: int = 0,
 ) -> None:
     """Raise :class:`UnexplainedTipError` when, in either view, more than ``max_pixels`` of the
     mask near the tip (:func:`unexplained_tip_pixels` within ``radius`` px) lie off the sequence.
     ``masks``: (left, right) (H, W); ``sequences``: (left, right) (N, 2) from the cut tip;
-    ``max_hole_area``: px², the largest hole the ordering's mask cleaning fills."""
+    ``max_hole_area``: px², the largest hole the ordering's mask cleaning fills; ``min_eye_width``:
+    px, the square of background that keeps such a hole open there."""
     for view, mask, sequence in zip(("left", "right"), masks, sequences, strict=True):
         sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
         pixels = _off_sequence(mask, sequence, radius)
         unexplained = len(pixels)
         if unexplained > max_pixels:  # fewer, never more: worked out only where it decides
-            unexplained = _not_covered(mask, sequence, pixels, radius, max_hole_area)
+            unexplained = _not_covered(mask, sequence, pixels, radius, max_hole_area, min_eye_width)
         if unexplained > max_pixels:
             raise UnexplainedTipError(
                 f"{unexplained} px of thread within {radius:.0f} px of the cut tip lie off the ordered "

@@ -28,6 +28,7 @@ from suture_ordering import (
     order_sequence,
     order_stereo,
 )
+from suture_ordering.cleaning import fill_holes_remove_specks
 from suture_ordering.stereo_fill import splice_skipped_stretch
 from suture_ordering.tip import right_tip_across_gap, tip_across_gap, tip_from_hint
 
@@ -99,6 +100,26 @@ def test_holes_inside_the_mask_and_specks_beside_it_change_nothing():
     assert (mask[np.rint(truth[:, 1]).astype(int), np.rint(truth[:, 0]).astype(int)] == 0).any()
     result = order_sequence(mask, truth[0])
     check_follows(result.points, truth, tolerance=2.0)
+
+
+def test_a_small_loops_eye_is_kept_open_and_a_slit_or_a_dropout_in_a_thick_stroke_filled():
+    mask = np.zeros((40, 200), np.uint8)
+    cv2.circle(mask, (20, 20), 3, 1, 1)  # a loop of 1-px thread round an eye 3 px across
+    mask[10:17, 60:72] = 1
+    mask[13, 62:70] = 0  # merged arms with a 1-px slit between them
+    mask[10:19, 130:190] = 1
+    mask[13:16, 150:153] = 0  # a 3x3 dropout inside a 9 px stroke
+    contours, hierarchy = cv2.findContours(mask, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_SIMPLE)
+    holes = [cv2.contourArea(c) for c, h in zip(contours, hierarchy[0], strict=True) if h[3] >= 0]
+    assert len(holes) == 3 and max(holes) <= OrderingParams().max_hole_area_px
+    kept = mask.copy()
+    fill_holes_remove_specks(kept, 20.0, min_eye_width=2)
+    assert kept[20, 20] == 0 and (kept[13, 62:70] == 1).all() and (kept[13:16, 150:153] == 1).all()
+    filled = mask.copy()
+    fill_holes_remove_specks(filled, 20.0, min_eye_width=0)
+    assert filled[20, 20] == 1
+    with pytest.raises(ValueError, match="min_eye_width_px"):
+        OrderingParams(min_eye_width_px=-1.0)
 
 
 def test_a_16_px_gap_is_bridged_and_flagged():

@@ -90,21 +90,37 @@ def test_merged_arms_the_sequence_runs_down_once_stay_unexplained_where_the_clea
     assert unexplained_tip_pixels(mask, down_and_back, 16.0, max_hole_area=20.0) <= 5
 
 
-def test_a_loops_rim_round_the_eye_the_cleaning_filled_is_explained_by_the_walk_through_it():
+def test_a_loops_eye_is_gone_round_and_where_filled_its_rim_is_explained_by_the_walk_into_it():
     """A simulator frame (hooked, 640x480, true masks; set seed 9701, frame 17): the cut end
-    curls into a loop whose eye (14 px²) the cleaning fills, beside merged arms whose 1-px slit
-    it fills too. The right view's walk goes down the filled stroke into the eye and back,
-    within 3 px of the true thread, but the loop's rim lay 3-4 px off it: 11 px unexplained,
-    and the frame was refused. Where the sequence passes a filled stroke twice, the stroke's
-    pixels within its depth of the sequence are explained."""
+    curls into a loop whose eye (14 px², 3 px across) sits beside merged arms with a 1-px slit.
+    Kept open (``min_eye_width_px``, the default), the eye is gone round: the right view's arc
+    from the tip to the thread past the loop comes within 7 px of the truth's. Filled with the
+    slit (``min_eye_width_px`` 0), the right view's walk goes down the filled stroke into the eye
+    and back, within 3 px of the true thread, 12 px of arc short, and the loop's rim lies 3-4 px
+    off it: 11 px unexplained, and the frame was refused. Where the sequence passes a filled
+    stroke twice, the stroke's pixels within its depth of the sequence are explained."""
     stored = np.load(Path(__file__).parent / "data" / "hooked_loop_eye_filled_right.npz")
     height, width = (int(n) for n in stored["shape"])
     left, right = (
         np.unpackbits(stored[view])[: height * width].reshape(height, width) for view in ("left", "right")
     )
     camera = StereoCamera.default(width, height)
-    ordering = order_stereo(left, right, stored["hint"], camera)
-    assert unexplained_tip_pixels(right, ordering.right, 16.0) > 5  # without the filled holes
-    for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
-        gap = np.hypot(*(sequence[:, None, :] - truth[None, :, :].astype(float)).transpose(2, 0, 1))
-        assert np.percentile(gap.min(axis=1), 95) <= 3.0
+    truth_right = stored["truth_right"].astype(float)
+    past_the_loop = truth_right[150]
+    true_arc = _arc_to(truth_right, past_the_loop)
+    filled = order_stereo(left, right, stored["hint"], camera, OrderingParams(min_eye_width_px=0.0))
+    kept = order_stereo(left, right, stored["hint"], camera)
+    assert unexplained_tip_pixels(right, filled.right, 16.0) > 5  # without the filled holes
+    assert unexplained_tip_pixels(right, kept.right, 16.0) <= 5
+    assert _arc_to(filled.right, past_the_loop) < true_arc - 10.0
+    assert _arc_to(kept.right, past_the_loop) > true_arc - 7.0
+    for ordering in (filled, kept):
+        for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, truth_right)):
+            gap = np.hypot(*(sequence[:, None, :] - truth[None, :, :].astype(float)).transpose(2, 0, 1))
+            assert np.percentile(gap.min(axis=1), 95) <= 3.0
+
+
+def _arc_to(sequence: np.ndarray, point: np.ndarray) -> float:
+    """Arc length (px) of ``sequence`` ((N, 2)) from its start to its point nearest ``point``."""
+    nearest = int(np.argmin(np.hypot(*(sequence - point).T)))
+    return float(np.hypot(*np.diff(sequence[: nearest + 1], axis=0).T).sum())
