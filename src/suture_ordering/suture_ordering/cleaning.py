@@ -12,8 +12,8 @@ pass (outer contours and holes, about 0.1 ms for a 640x480 mask):
   far larger and is kept, and so is a small hole that holds a square of
   background ``min_eye_width`` px wide: the eye of a small loop, typically at the
   bend of a hairpin at the cut tip. Filled, the eye becomes a blob that the
-  search enters and leaves, and the sequence misses the loop's arc (5-7 mm for
-  an eye 3 px across at 640x480), so the grasp lands that much too far along;
+  search enters and leaves, and the sequence misses the loop's arc, so the grasp
+  lands that much too far along (5-9 mm on simulated hooks at 640x480);
 * components whose bounding box is smaller than ``min_blob_extent`` px in both
   directions are removed: specks that are no thread.
 

@@ -19,13 +19,12 @@ Where the hook at the tip is so tight that the mask cleaning filled its holes (t
 wide between merged arms, the eye of a loop too small to keep open: ``max_hole_area``,
 ``min_eye_width``), the walk through the hook goes down the filled stroke's middle and back, or
 into the filled eye and back, and the arms' outer pixels, or the loop's rim, lie a little farther
-from it than one thread's half width. Those
-pixels are explained where the sequence passes twice, before it first leaves the tip's
-neighbourhood (:func:`_doubled`), and where the filling widened the stroke at the sequence's
-point: within 1 px more than that point's distance to the filled mask's edge (the discs about a
-medial axis that rebuild its shape; :func:`_covered`). A loop or hook the search skipped is not:
-the sequence does not come back to it, and a thread beside the sequence that it passes once is
-not either.
+from it than one thread's half width. Those pixels are explained where the sequence passes
+twice, before it first leaves the tip's neighbourhood (:func:`_doubled`), and where the filling
+widened the stroke at the sequence's point: within 1 px more than that point's distance to the
+filled mask's edge (the discs about a medial axis that rebuild its shape; :func:`_covered`). A
+loop or hook the search skipped is not: the sequence does not come back to it, and a thread
+beside the sequence that it passes once is not either.
 :func:`check_tip_explained` raises :class:`~suture_ordering.errors.UnexplainedTipError`
 when either view has more than ``max_pixels``.
 """

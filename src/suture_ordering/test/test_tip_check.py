@@ -94,7 +94,7 @@ def test_a_loops_eye_is_gone_round_and_where_filled_its_rim_is_explained_by_the_
     """A simulator frame (hooked, 640x480, true masks; set seed 9701, frame 17): the cut end
     curls into a loop whose eye (14 px², 3 px across) sits beside merged arms with a 1-px slit.
     Kept open (``min_eye_width_px``, the default), the eye is gone round: the right view's arc
-    from the tip to the thread past the loop comes within 7 px of the truth's. Filled with the
+    from the tip to the thread past the loop comes within 8 px of the truth's. Filled with the
     slit (``min_eye_width_px`` 0), the right view's walk goes down the filled stroke into the eye
     and back, within 3 px of the true thread, 12 px of arc short, and the loop's rim lies 3-4 px
     off it: 11 px unexplained, and the frame was refused. Where the sequence passes a filled
@@ -113,7 +113,7 @@ def test_a_loops_eye_is_gone_round_and_where_filled_its_rim_is_explained_by_the_
     assert unexplained_tip_pixels(right, filled.right, 16.0) > 5  # without the filled holes
     assert unexplained_tip_pixels(right, kept.right, 16.0) <= 5
     assert _arc_to(filled.right, past_the_loop) < true_arc - 10.0
-    assert _arc_to(kept.right, past_the_loop) > true_arc - 7.0
+    assert _arc_to(kept.right, past_the_loop) > true_arc - 8.0
     for ordering in (filled, kept):
         for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, truth_right)):
             gap = np.hypot(*(sequence[:, None, :] - truth[None, :, :].astype(float)).transpose(2, 0, 1))
