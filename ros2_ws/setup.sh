@@ -65,6 +65,15 @@ if ! "$python" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
 fi
 
 echo "setup: creating the environment in $venv (first run takes a few minutes)"
+# pip's own error for a full disk is easy to miss in its output: say it first.
+need_mb=$(( with_blender ? 3500 : 2500 ))
+for place in "$repo" "${TMPDIR:-/tmp}"; do
+  free_mb=$(df -Pm "$place" 2>/dev/null | awk 'NR == 2 {print $4}')
+  if [ -n "$free_mb" ] && [ "$free_mb" -lt "$need_mb" ]; then
+    echo "setup: warning: $free_mb MB free on the disk of $place; the installation needs about" \
+      "$need_mb MB there (pip then fails with 'No space left on device')" >&2
+  fi
+done
 [ -x "$venv/bin/python" ] || "$python" -m venv "$venv"
 pip=("$venv/bin/python" -m pip --disable-pip-version-check)
 "${pip[@]}" install --quiet --upgrade "pip>=24" 2>&1 | grep -v "^WARNING: Location" || true
