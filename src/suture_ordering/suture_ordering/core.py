@@ -26,7 +26,7 @@ from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
 from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError, TipNotOnThreadError
 from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
-from suture_ordering.not_seen import flagged_sequence
+from suture_ordering.not_seen import flagged_sequence, seen_in_low_mask
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
@@ -280,7 +280,8 @@ def order_stereo(
         are taken when they reach farther: one view longer by more than ``low_mask_min_gain``
         and neither shorter by more than ``low_mask_max_loss`` (relative); or when the masks
         themselves give no sequence. A faint stretch where the masks break then no longer ends
-        the thread, while where both agree the masks' narrower centrelines are kept.
+        the thread, while where both agree the masks' narrower centrelines are kept; a stretch
+        that the masks' search bridged and that the low mask covers is published as seen.
 
     Returns
     -------
@@ -370,13 +371,23 @@ def _masks_or_low_masks(
     try:
         low = _order_pair(*low_masks, tip_hint, camera, params)
     except OrderingError:
-        return ordering
+        return _gaps_read_on(ordering, low_masks)
     gains = [_length(low.left) / _length(ordering.left), _length(low.right) / _length(ordering.right)]
     # Seeing the cut end beats bridging it from the hint.
     sees_tip = _tip_gap(low.left_result) < _tip_gap(ordering.left_result)
     if sees_tip or (max(gains) > 1 + params.low_mask_min_gain and min(gains) >= 1 - params.low_mask_max_loss):
         return dataclasses.replace(low, low_masks_used=True)
-    return ordering
+    return _gaps_read_on(ordering, low_masks)
+
+
+def _gaps_read_on(ordering: StereoOrdering, low_masks: tuple[np.ndarray, np.ndarray]) -> StereoOrdering:
+    """``ordering`` of the masks with the stretches it bridged re-read on the low masks: a
+    stretch the low mask covers was faint, not hidden, and is published as seen."""
+    return dataclasses.replace(
+        ordering,
+        left_sequence=seen_in_low_mask(ordering.left_sequence, low_masks[0]),
+        right_sequence=seen_in_low_mask(ordering.right_sequence, low_masks[1]),
+    )
 
 
 def _right_view(

@@ -76,3 +76,17 @@ def _off_mask_between_ends(stretch: np.ndarray, mask: np.ndarray) -> np.ndarray:
     if off.size:
         flags[off[0] : off[-1] + 1] = 1.0
     return flags
+
+
+def seen_in_low_mask(sequence: np.ndarray, low_mask: np.ndarray) -> np.ndarray:
+    """(N, 3) published ``sequence`` with its not-seen stretches re-read on ``low_mask`` (H, W):
+    in each stretch, only the points from the first to the last that lie off the low mask stay
+    flagged (:func:`_off_mask_between_ends`); a stretch the low mask covers throughout is seen."""
+    flagged = np.array(sequence, dtype=np.float64)
+    not_seen = flagged[:, 2] > 0.5
+    if not not_seen.any():
+        return flagged
+    change = np.diff(np.concatenate(([0], not_seen.astype(np.int8), [0])))
+    for start, stop in zip(np.flatnonzero(change == 1), np.flatnonzero(change == -1), strict=True):
+        flagged[start:stop, 2] = _off_mask_between_ends(flagged[start:stop, :2], np.asarray(low_mask))
+    return flagged

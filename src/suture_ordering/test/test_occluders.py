@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_ordering import order_sequence, order_stereo
-from suture_ordering.not_seen import flagged_sequence
+from suture_ordering.not_seen import flagged_sequence, seen_in_low_mask
 from suture_ordering.occluders import _path_back, end_direction
 from suture_ordering.path import Branch
 
@@ -93,6 +93,39 @@ def test_the_stereo_ordering_publishes_the_bridged_stretch_flagged_in_both_views
         assert not mask[v, u].any()  # not seen: off the mask
         distance, _ = cKDTree(truth - [shift, 0]).query(flagged)
         assert distance.max() < 3.5
+
+
+def test_a_bridged_stretch_that_the_low_mask_covers_is_published_as_seen_and_one_under_a_shaft_is_not():
+    # The masks lose 40 px of the thread in both views (faint there); the low masks keep it.
+    camera = StereoCamera.default(W, H)
+    truth = _curve()
+
+    def pair(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return mask, np.roll(mask, -25, axis=1)
+
+    masks = pair(_shaft(_draw(truth), truth, 0.45, 40))
+    alone = order_stereo(*masks, truth[0], camera)
+    assert all(
+        25 < (sequence[:, 2] == 1).sum() < 70 for sequence in (alone.left_sequence, alone.right_sequence)
+    )
+    faint = order_stereo(*masks, truth[0], camera, low_masks=pair(_draw(truth)))
+    assert not faint.low_masks_used  # the masks' own sequences, their bridge now seen
+    np.testing.assert_array_equal(faint.left_sequence[:, :2], alone.left_sequence[:, :2])
+    assert not faint.left_sequence[:, 2].any() and not faint.right_sequence[:, 2].any()
+    # Low masks that lose the stretch too (a shaft hides it) leave it flagged.
+    hidden = order_stereo(*masks, truth[0], camera, low_masks=masks)
+    np.testing.assert_array_equal(hidden.left_sequence, alone.left_sequence)
+    np.testing.assert_array_equal(hidden.right_sequence, alone.right_sequence)
+
+
+def test_seen_in_low_mask_keeps_flagged_the_part_of_a_stretch_off_the_low_mask():
+    sequence = np.column_stack([np.arange(20.0), np.full(20, 10.0), np.zeros(20)])
+    sequence[5:15, 2] = 1.0
+    low = np.zeros((H, W), np.uint8)
+    low[10, :9] = 255  # u 0-8: the points up to u 9 lie within 1 px of it
+    flags = seen_in_low_mask(sequence, low)[:, 2]
+    np.testing.assert_array_equal(np.flatnonzero(flags), np.arange(10, 15))
+    np.testing.assert_array_equal(sequence[5:15, 2], 1.0)  # the input is left as it was
 
 
 def test_a_thread_ending_where_another_strand_crosses_its_way_is_not_joined_to_it():
