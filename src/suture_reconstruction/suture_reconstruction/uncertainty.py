@@ -18,8 +18,9 @@ thread between the cut tip and the grasp point, four terms added in quadrature:
   and the grasp point that is not seen in both views;
 * **disagreement**: the 3D path, projected into each view, should lie on that view's seen
   sequence. Its largest distance from it (px) between the tip and just past the grasp point,
-  over the stretches seen in both views, means the views were paired wrongly or describe
-  different threads there; each pixel is taken as a pixel of disparity (``Z^2 / (f B)`` mm).
+  held over :data:`DISAGREEMENT_ARC_M` of arc seen in both views, means the views were paired
+  wrongly or describe different threads there; each pixel is taken as a pixel of disparity
+  (``Z^2 / (f B)`` mm).
 
 * **unsupported depth**: along a stretch within :data:`UNSUPPORTED_ROW_DEG` of the rows the
   pair measures no depth; the reconstruction carries it there from the stretches on either
@@ -76,6 +77,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import minimum_filter1d
 from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
@@ -112,6 +114,10 @@ TIP_MATCH_PX = 3.0
 EXPLAINED_PX = 3.0
 #: Spacing (m) of the curve samples the assessment projects into the views.
 SAMPLE_STEP_M = 0.0005
+#: Arc (m) over which the views must disagree for the disagreement term to count it: a blob or
+#: notch of one view's mask moves its centreline over a few pixels, the other strand at a
+#: crossing or a loop one view skipped over much more than 2 mm (about 10 px at 100 mm).
+DISAGREEMENT_ARC_M = 0.002
 
 
 @dataclass(frozen=True)
@@ -182,6 +188,14 @@ def _residual_px(uv: np.ndarray, support: _ViewSupport, to_samples: np.ndarray) 
     return np.minimum(np.linalg.norm(uv[:, None] - closest, axis=-1).min(axis=1), to_samples)
 
 
+def _held_residual_px(residual: np.ndarray, seen_both: np.ndarray) -> float:
+    """The largest residual (px) that the (S,) ``residual`` holds over :data:`DISAGREEMENT_ARC_M`
+    of consecutive samples seen in both views (``seen_both``, (S,) bool); 0.0 with none."""
+    window = max(round(DISAGREEMENT_ARC_M / SAMPLE_STEP_M), 1)
+    held = minimum_filter1d(np.where(seen_both, residual, 0.0), window, mode="constant", cval=0.0)
+    return float(held.max()) if held.size else 0.0
+
+
 def assess_grasp(
     curve: ArcLengthCurve,
     path: np.ndarray,
@@ -229,7 +243,7 @@ def assess_grasp(
     unsupported = _unsupported_depth_mm(points[before], row_sine[before])
     not_seen_arc_mm = 1000 * SAMPLE_STEP_M * float((~seen_both[before]).sum())
     not_seen = NOT_SEEN_ARC_FACTOR * not_seen_arc_mm
-    residual_px = float(residual[seen_both].max()) if seen_both.any() else 0.0
+    residual_px = _held_residual_px(residual, seen_both)
     disagreement = depth_per_px_mm * residual_px
     uncertainty = GraspUncertainty(
         total_mm=float(np.sqrt(conditioning**2 + not_seen**2 + disagreement**2 + unsupported**2)),
