@@ -9,8 +9,8 @@ Subscribes ``/suture/{left,right}/mask`` (sensor_msgs/Image mono8, sensor-data Q
 reliable QoS) for each pair: x = u, y = v from the cut tip, and z the not-seen flag, 0.0 for a
 point seen in the mask (or, across a gap, in the low mask) and 1.0 for one the search
 interpolated across a gap in it (e.g. under an instrument shaft lying across the thread;
-``StereoOrdering.left_sequence``), so that the 3D
-stage takes depth there from the seen thread on either side instead of matching it. A cut end
+``StereoOrdering.left_sequence``), so that the 3D stage takes depth there from the seen thread
+on either side instead of matching it. A cut end
 that the mask lost (no thread within ``tip_radius_px`` of the hint, but a thread end pointing at
 it from at most ``tip_gap_max_px``) starts the sequence at the hint with a straight stretch
 flagged 1.0; its depth is that of the first point seen.

@@ -129,8 +129,8 @@ class GraspUncertainty:
     ``row_angle_deg``: the thread's angle to the image rows at the grasp point (left view);
     ``not_seen_arc_mm``: arc between the tip and the grasp point not seen in both views;
     ``residual_px``: the largest distance of the projected path from a view's seen sequence
-    (tip to just past the grasp point); ``grasp_not_seen``: the views ('left', 'right') in which
-    the grasp point is not seen.
+    held over :data:`DISAGREEMENT_ARC_M` (tip to just past the grasp point); ``grasp_not_seen``:
+    the views ('left', 'right') in which the grasp point is not seen.
     """
 
     total_mm: float
