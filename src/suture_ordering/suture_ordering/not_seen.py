@@ -86,7 +86,8 @@ def seen_in_low_mask(sequence: np.ndarray, low_mask: np.ndarray) -> np.ndarray:
     not_seen = flagged[:, 2] > 0.5
     if not not_seen.any():
         return flagged
+    low_mask = np.asarray(low_mask)
     change = np.diff(np.concatenate(([0], not_seen.astype(np.int8), [0])))
     for start, stop in zip(np.flatnonzero(change == 1), np.flatnonzero(change == -1), strict=True):
-        flagged[start:stop, 2] = _off_mask_between_ends(flagged[start:stop, :2], np.asarray(low_mask))
+        flagged[start:stop, 2] = _off_mask_between_ends(flagged[start:stop, :2], low_mask)
     return flagged
