@@ -1,11 +1,18 @@
 # SPDX-License-Identifier: Apache-2.0
 """Int8 ONNX models: the suture U-Net quantised for faster CPU inference (``suture-seg export --int8``).
 
-Static quantisation with ONNX Runtime in the QDQ format: weights int8 per output channel,
-activations uint8 with ranges calibrated (min/max) on sample images of the camera the model will
-see. The model keeps the interface of :func:`~suture_segmentation.checkpoint.onnx_bytes`
-(``image`` in, ``logits`` out), so ``segmentation_node`` and ``suture-eval`` run it as any other
-``.onnx`` weights file with the ``onnx`` backend.
+Static quantisation with ONNX Runtime in the QDQ format: weights int8 per output channel in 7
+bits (-64..64, ``reduce_range``), activations uint8 with ranges calibrated (min/max) on sample
+images of the camera the model will see. The model keeps the interface of
+:func:`~suture_segmentation.checkpoint.onnx_bytes` (``image`` in, ``logits`` out), so
+``segmentation_node`` and ``suture-eval`` run it as any other ``.onnx`` weights file with the
+``onnx`` backend.
+
+The 7 bits keep the integer arithmetic exact on every x86 CPU. Without int8 dot-product
+instructions (AVX2 alone: AMD before Zen 4, Intel before Cascade Lake) ONNX Runtime multiplies
+uint8 by int8 with ``VPMADDUBSW``, which saturates the sum of each pair of products at 16 bits:
+255 * 127 * 2 overflows it, 255 * 64 * 2 does not. With full-range weights such a CPU loses
+most of the thread (docs/results.md, "Int8 models on CPUs without VNNI").
 
 On a CPU with int8 dot-product instructions (AVX-512 VNNI, AVX-VNNI) the shipped M-oST runs
 about a fifth faster than in float32, and its masks agree with the float32 ones to an IoU of
@@ -76,6 +83,7 @@ def quantized_onnx_bytes(model: SutureUNet, images: Sequence[np.ndarray]) -> byt
             Batches(),
             quant_format=QuantFormat.QDQ,
             per_channel=True,
+            reduce_range=True,  # 7-bit weights: no 16-bit saturation on AVX2 (module docstring)
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
             calibrate_method=CalibrationMethod.MinMax,

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import onnx
 import pytest
+from onnx import numpy_helper
 
 from suture_common.camera import StereoCamera
 from suture_segmentation.checkpoint import SHIPPED, load_checkpoint, onnx_metadata
@@ -74,8 +76,12 @@ def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str,
     command = onnx_metadata(path)["command"]  # ros2_ws/train_segmentation.sh, the last steps
     assert command.startswith("suture-seg export --weights") and f"{calibration}/images" in command
     assert "--int8" in command
+    # 7-bit weights: uint8 * int8 pair sums fit 16 bits on CPUs without VNNI (quantize.py)
+    weights = [numpy_helper.to_array(t) for t in onnx.load(path).graph.initializer]
+    weights = [w for w in weights if w.dtype == np.int8 and w.size > 1]
+    assert weights and max(int(np.abs(w).max()) for w in weights) <= 64
     config = SimConfig(topology="mixed", domain=domain, camera=StereoCamera.default(640, 480), seed=4243)
-    frames = [generate_frame(config, index) for index in range(3)]
+    frames = [generate_frame(config, index) for index in range(6)]
     models = {"float": Segmenter(name, backend="onnx"), "int8": Segmenter(f"{name}_int8")}
     truth_iou, agreement = {kind: [] for kind in models}, []
     for frame in frames:
@@ -84,7 +90,9 @@ def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str,
             for kind in models:
                 truth_iou[kind].append(score_mask(masks[kind][view], truth).iou)
             agreement.append(score_mask(masks["int8"][view], masks["float"][view] > 0).iou)
-    # measured: masks agree to IoU 0.88-0.99 per view (edge pixels of a 2 px thread flip)
+    # measured: masks agree to IoU 0.78-0.99 per view (edge pixels of a 2 px thread flip), mean
+    # 0.89-0.95; truth IoU within 0.014 of the float model's. Full-range weights on an AVX2-only
+    # CPU: agreement 0.03-0.96 per view.
     assert np.mean(agreement) > 0.85
     assert abs(np.mean(truth_iou["int8"]) - np.mean(truth_iou["float"])) < 0.03
 
