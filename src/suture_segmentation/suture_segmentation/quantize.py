@@ -9,8 +9,8 @@ images of the camera the model will see. The model keeps the interface of
 ``onnx`` backend.
 
 The 7 bits keep the integer arithmetic exact on every x86 CPU. Without int8 dot-product
-instructions (AVX2 alone: AMD before Zen 4, Intel before Cascade Lake) ONNX Runtime multiplies
-uint8 by int8 with ``VPMADDUBSW``, which saturates the sum of each pair of products at 16 bits:
+instructions (VNNI: AMD before Zen 4, Intel before Cascade Lake) ONNX Runtime multiplies uint8
+by int8 with ``VPMADDUBSW``, which saturates the sum of each pair of products at 16 bits:
 255 * 127 * 2 overflows it, 255 * 64 * 2 does not. With full-range weights such a CPU loses
 most of the thread (docs/results.md, "Int8 models on CPUs without VNNI").
 
@@ -83,7 +83,7 @@ def quantized_onnx_bytes(model: SutureUNet, images: Sequence[np.ndarray]) -> byt
             Batches(),
             quant_format=QuantFormat.QDQ,
             per_channel=True,
-            reduce_range=True,  # 7-bit weights: no 16-bit saturation on AVX2 (module docstring)
+            reduce_range=True,  # 7-bit weights: no 16-bit saturation without VNNI (module docstring)
             activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8,
             calibrate_method=CalibrationMethod.MinMax,
