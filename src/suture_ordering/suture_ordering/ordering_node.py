@@ -10,10 +10,10 @@ reliable QoS) for each pair: x = u, y = v from the cut tip, and z the not-seen f
 point seen in the mask (or, across a gap, in the low mask) and 1.0 for one the search
 interpolated across a gap in it (e.g. under an instrument shaft lying across the thread;
 ``StereoOrdering.left_sequence``), so that the 3D stage takes depth there from the seen thread
-on either side instead of matching it. A cut end
-that the mask lost (no thread within ``tip_radius_px`` of the hint, but a thread end pointing at
-it from at most ``tip_gap_max_px``) starts the sequence at the hint with a straight stretch
-flagged 1.0; its depth is that of the first point seen.
+on either side instead of matching it. A cut end that the mask lost (no thread within
+``tip_radius_px`` of the hint, but a thread end pointing at it from at most ``tip_gap_max_px``)
+starts the sequence at the hint with a straight stretch flagged 1.0; its depth is that of the
+first point seen.
 
 With ``use_low_masks`` (default true) it also subscribes ``/suture/{left,right}/mask_low``
 (segmentation_node's low masks, the same format) and gives the pair of the masks' stamp to

@@ -14,10 +14,11 @@ by int8 with ``VPMADDUBSW``, which saturates the sum of each pair of products at
 255 * 127 * 2 overflows it, 255 * 64 * 2 does not. With full-range weights such a CPU loses
 most of the thread (docs/results.md, "Int8 models on CPUs without VNNI").
 
-On a CPU with int8 dot-product instructions (AVX-512 VNNI, AVX-VNNI) the shipped M-oST runs
-about a fifth faster than in float32, and its masks agree with the float32 ones to an IoU of
-about 0.99 (docs/results.md, "Segmentation speed"). Without those instructions the gain can vanish: measure
-with ``suture-seg bench --weights FILE.onnx --backends onnx``.
+On a CPU with int8 dot-product instructions (AVX-512 VNNI, AVX-VNNI) the earlier export with
+8-bit weights ran about a fifth faster than float32 (docs/results.md, "Segmentation speed"); the
+7-bit models' masks agree with the float32 ones to a mean IoU of 0.91-0.95 over the test's frames.
+Without those instructions int8 need not be faster (on an AMD EPYC: 321 against 293 ms per
+pair): measure with ``suture-seg bench --weights FILE.onnx --backends onnx``.
 """
 
 from __future__ import annotations
