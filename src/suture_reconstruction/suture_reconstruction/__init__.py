@@ -8,6 +8,7 @@ rclpy adapter (the only module here that imports rclpy).
 from suture_reconstruction.core import Reconstruction, ReconstructionParams, reconstruct
 from suture_reconstruction.errors import (
     ArcAlongViewError,
+    EndDisparityError,
     GraspNotSeenError,
     GraspRefusedError,
     ImagePairError,
@@ -29,6 +30,7 @@ from suture_reconstruction.uncertainty import GraspUncertainty
 __all__ = [
     "ArcAlongViewError",
     "DisparitySmoothing",
+    "EndDisparityError",
     "GraspNotSeenError",
     "GraspRefusedError",
     "GraspUncertainty",

@@ -41,14 +41,17 @@ both call. Steps (paper Section II.B end and II.C):
    from the tip is more than ``max_arc_image_ratio`` times the length its image covers, is refused;
    so is, where the thread runs along the image rows at the grasp point (its depth not measured
    there), one that lies more than ``max_behind_surface_px`` of disparity behind the textured
-   surface beside it (:mod:`suture_reconstruction.surface`; only with images).
+   surface beside it (:mod:`suture_reconstruction.surface`; only with images), and, where no
+   stretch of the thread crosses the image rows steeply (its depth rests on its ends), one whose
+   cut tip or far end the images place more than ``max_end_disparity_gap_px`` of disparity from
+   the reconstruction (:mod:`suture_reconstruction.ends`; only with images).
 
 Errors: :class:`~suture_reconstruction.errors.ReconstructionError` subclasses
 (InvalidSequenceError, also for points outside the image or an implausibly long
 sequence, see :func:`~suture_reconstruction.sequences.check_plausible`; TooFewPointsError,
 NoStereoOverlapError, ThreadTooShortError; ImagePairError for images that do not fit the
 camera; TipNotReconstructedError, GraspNotSeenError, UncertainGraspError, UnexplainedArcError,
-ArcAlongViewError and ThreadBehindSurfaceError
+ArcAlongViewError, ThreadBehindSurfaceError and EndDisparityError
 for a grasp point that is not trusted)
 and ``suture_common.camera.CameraModelError`` for an unusable camera.
 """
@@ -64,6 +67,12 @@ import numpy as np
 from suture_common.camera import CameraModelError, StereoCamera
 from suture_common.parameters import described
 from suture_reconstruction.curve import ArcLengthCurve, fit_curve, grasp_pose
+from suture_reconstruction.ends import (
+    ANCHOR_ROW_DEG,
+    anchor_row_angle_deg,
+    end_disparity_gaps_px,
+    refuse_contradicted_ends,
+)
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
 from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
 from suture_reconstruction.pairing import (
@@ -214,6 +223,19 @@ class ReconstructionParams:
         ),
     )
 
+    max_end_disparity_gap_px: float = field(
+        default=2.0,
+        metadata=described(
+            "where no stretch of the thread crosses the image rows at 10 degrees or more (its depth "
+            "rests on its two ends' pairs), the largest disparity (px) by which the images may place "
+            "the cut tip or the far end away from the reconstruction (2 px: about 8 mm of depth at "
+            "100 mm with fx 520 px and a 5 mm baseline); farther, the masks' ends or rows disagree "
+            "between the views and the carried depth is wrong (EndDisparityError; only checked with "
+            "images)",
+            (0.0, 1000.0),
+        ),
+    )
+
     def __post_init__(self) -> None:
         if self.min_points < 3 or self.min_pairs < 3:
             raise ValueError("min_points and min_pairs must be at least 3")
@@ -227,6 +249,10 @@ class ReconstructionParams:
             raise ValueError(f"max_arc_image_ratio must be at least 1, got {self.max_arc_image_ratio}")
         if not self.max_behind_surface_px > 0:
             raise ValueError(f"max_behind_surface_px must be positive, got {self.max_behind_surface_px}")
+        if not self.max_end_disparity_gap_px > 0:
+            raise ValueError(
+                f"max_end_disparity_gap_px must be positive, got {self.max_end_disparity_gap_px}"
+            )
         if not self.max_tip_gap_mm > 0:
             raise ValueError(f"max_tip_gap_mm must be positive, got {self.max_tip_gap_mm}")
         if not self.max_grasp_uncertainty_mm > 0:
@@ -450,6 +476,11 @@ def reconstruct(
     unexplained, view = unexplained_arc_mm(curve, camera, (left, right), params.grasp_arc_length)
     refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)
     refuse_arc_along_view(arc_image_ratio(curve, camera, params.grasp_arc_length), params.max_arc_image_ratio)
+    if images is not None:
+        anchor_deg = anchor_row_angle_deg(curve, camera)
+        if anchor_deg < ANCHOR_ROW_DEG:
+            gaps = end_disparity_gaps_px(images, left, curve, camera)
+            refuse_contradicted_ends(gaps, anchor_deg, params.max_end_disparity_gap_px)
     if images is not None and uncertainty.row_angle_deg < UNSUPPORTED_ROW_DEG:
         grasp_uv = camera.project(grasp.position[None], "left")[0]
         gap = surface_gap_px(images, grasp_uv, float(camera.disparity(grasp.position[2])))

@@ -54,6 +54,12 @@ class ThreadBehindSurfaceError(ReconstructionError):
     it, whose depth the pair does measure: the carried depth, and the grasp point, are wrong."""
 
 
+class EndDisparityError(ReconstructionError):
+    """The thread crosses the image rows nowhere steeply, so its depth rests on its two ends' pairs,
+    and the images put an end at another disparity than the masks' sequences do: the ends, and the
+    depth carried between them, are wrong."""
+
+
 class ImagePairError(ReconstructionError):
     """The stereo images given for the photometric refinement cannot be used (sizes differ from each
     other or from the camera, not (H, W) or (H, W, C))."""

@@ -41,8 +41,10 @@ which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread tha
 does not explain (UnexplainedArcError), or whose 3D arc from the tip is more than
 ``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError), or that lies, where
 the thread runs along the image rows, more than ``max_behind_surface_px`` of disparity behind the
-textured surface beside it (ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`); nothing
-of it is published.
+textured surface beside it (ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`), or
+that lies on a thread crossing the image rows nowhere steeply whose cut tip or far end the images
+place more than ``max_end_disparity_gap_px`` of disparity from the reconstruction
+(EndDisparityError; :mod:`suture_reconstruction.ends`); nothing of it is published.
 """
 
 from __future__ import annotations
@@ -109,6 +111,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "max_unexplained_arc_mm"),
     (ReconstructionParams, "max_arc_image_ratio"),
     (ReconstructionParams, "max_behind_surface_px"),
+    (ReconstructionParams, "max_end_disparity_gap_px"),
     (ShapeGraphParams, "tau_l"),
     (ShapeGraphParams, "tau_step"),
     (ShapeGraphParams, "upsilon3"),

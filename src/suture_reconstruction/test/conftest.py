@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -106,6 +107,25 @@ def exact_view_sequences(camera: StereoCamera, curve: np.ndarray) -> tuple[np.nd
 def exact_views() -> Callable[[StereoCamera, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """:func:`exact_view_sequences`, for tests that build their own threads."""
     return exact_view_sequences
+
+
+def textured_plane_views(
+    camera: StereoCamera, surface_disparity: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) uint8 (H, W, 3) images of a textured plane at ``surface_disparity`` px."""
+    rng = np.random.default_rng(seed)
+    width = camera.width + surface_disparity
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (camera.height, width)).astype(np.float32), (0, 0), 2.0)
+    texture = np.clip(128 + 4 * (texture - texture.mean()), 0, 255).astype(np.uint8)
+    left = texture[:, : camera.width]
+    right = texture[:, surface_disparity:]  # right(u) = left(u + d): the plane at disparity d
+    return np.dstack([left] * 3), np.dstack([right] * 3)
+
+
+@pytest.fixture
+def textured_pair() -> Callable[..., tuple[np.ndarray, np.ndarray]]:
+    """:func:`textured_plane_views`, for tests that give reconstruct images."""
+    return textured_plane_views
 
 
 @pytest.fixture

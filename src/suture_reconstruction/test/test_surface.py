@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 
@@ -13,19 +12,6 @@ from suture_reconstruction import ReconstructionParams, ThreadBehindSurfaceError
 from suture_reconstruction.surface import refuse_behind_surface, surface_gap_px
 
 LENIENT = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0, max_arc_image_ratio=1000.0)
-
-
-def textured_pair(
-    camera: StereoCamera, surface_disparity: int, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray]:
-    """(left, right) uint8 (H, W, 3) images of a textured plane at ``surface_disparity`` px."""
-    rng = np.random.default_rng(seed)
-    width = camera.width + surface_disparity
-    texture = cv2.GaussianBlur(rng.uniform(0, 255, (camera.height, width)).astype(np.float32), (0, 0), 2.0)
-    texture = np.clip(128 + 4 * (texture - texture.mean()), 0, 255).astype(np.uint8)
-    left = texture[:, : camera.width]
-    right = texture[:, surface_disparity:]  # right(u) = left(u + d): the plane at disparity d
-    return np.dstack([left] * 3), np.dstack([right] * 3)
 
 
 def thread_along_rows() -> np.ndarray:
@@ -37,7 +23,7 @@ def thread_along_rows() -> np.ndarray:
     return np.column_stack([xy + np.array([0.035, -0.01]), np.full(len(s), 0.095)])
 
 
-def test_the_surface_gap_is_the_planes_disparity_less_the_threads():
+def test_the_surface_gap_is_the_planes_disparity_less_the_threads(textured_pair):
     camera = StereoCamera.default(640, 480)
     images = textured_pair(camera, 30)
     gap = surface_gap_px(images, np.array([320.0, 240.0]), 24.5)
@@ -55,7 +41,7 @@ def test_only_a_thread_along_the_rows_and_well_behind_the_surface_is_refused():
         refuse_behind_surface(8.0, 1.0, 3.0)
 
 
-def test_a_thread_along_the_rows_reconstructed_behind_the_tissue_is_refused(exact_views):
+def test_a_thread_along_the_rows_reconstructed_behind_the_tissue_is_refused(exact_views, textured_pair):
     camera = StereoCamera.default(640, 480)
     curve = thread_along_rows()
     left, right = exact_views(camera, curve)

@@ -1,0 +1,136 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The thread's ends in the images, as the witness of a depth that rests on them alone.
+
+Rectified stereo measures a thread's depth only where it crosses the image rows. A thread that
+nowhere crosses them steeply (no stretch of :data:`ANCHOR_ARC_M` at :data:`ANCHOR_ROW_DEG` or
+more) gets its depth from where its two ends lie in each view: the disparity of the cut tip and of
+the far end, carried between them under the shape prior. The masks' ends are the segmentation's
+least certain pixels (a faint tip or end cut short in one view by a few pixels), and with an
+endoscope's 5 mm baseline each pixel of disparity there is 3-9 mm of depth, which tilts the thread
+and moves the grasp point, placed by arc length from the tip, along it.
+
+An end of a thread is a feature in both directions, so the images measure its disparity where the
+masks do not: :func:`end_disparity_gaps_px` matches a window around each end of the left sequence
+(centred on its first and last :data:`END_SAMPLES` seen samples, :data:`END_RADIUS_PX` along the
+thread so that it holds the termination, and away from the image border, where a view's sequence
+stops because the image does) along the same row of the right image, within
+:data:`END_SEARCH_PX` of the reconstruction's disparity
+(:func:`~suture_reconstruction.photometric.match_along_rows`), and returns the median difference
+at each end. A window along the thread alone would not do: shifted along a thread parallel to
+the rows, it matches itself. :func:`refuse_contradicted_ends` raises
+:class:`~suture_reconstruction.errors.EndDisparityError` when the thread has no steep stretch
+(:func:`anchor_row_angle_deg`) and the images put an end more than ``max_end_disparity_gap_px``
+from where the reconstruction has it. A thread that crosses the rows somewhere is not checked: its
+depth is measured there, and the end matches, which are weak on a faint thread on blurred tissue,
+would only add false refusals.
+
+Units: metres for 3D points, pixels in the images, degrees for angles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import minimum_filter1d
+
+from suture_common.camera import StereoCamera
+from suture_reconstruction.curve import ArcLengthCurve
+from suture_reconstruction.errors import EndDisparityError
+from suture_reconstruction.photometric import PhotometricParams, match_along_rows, prepare_images
+from suture_reconstruction.sequences import Resampled
+
+#: A stretch of thread at least this steep (deg to the image rows) over ANCHOR_ARC_M measures depth.
+ANCHOR_ROW_DEG = 10.0
+#: Arc (m) a stretch must hold ANCHOR_ROW_DEG over to anchor the thread's depth.
+ANCHOR_ARC_M = 0.005
+#: Spacing (m) of the curve samples whose angle to the rows is read.
+SAMPLE_STEP_M = 0.0005
+#: Outermost seen samples (1 px apart) of the left sequence matched at each end.
+END_SAMPLES = 5
+#: Half-length (px, along the thread) of each end's window: it reaches past the end, so that the
+#: termination, which fixes the shift along a thread parallel to the rows, lies inside it.
+END_RADIUS_PX = 10
+#: Half-width (px, across the thread) of each end's window.
+END_HALF_WIDTH_PX = 5.0
+#: Disparities (px) searched either side of the reconstruction's at the ends.
+END_SEARCH_PX = 10
+#: Fewest matched samples for an end to count as evidence.
+MIN_END_MATCHES = 3
+#: Ends closer than this (px) to the image border are where the image, not the thread, stops.
+BORDER_PX = 12.0
+
+
+def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
+    """The largest angle (deg) to the image rows that the thread's left image holds over
+    :data:`ANCHOR_ARC_M` of arc anywhere along it (0.0 for a thread shorter than that)."""
+    s = np.arange(0.0, curve.length + 1e-12, SAMPLE_STEP_M)
+    window = max(round(ANCHOR_ARC_M / SAMPLE_STEP_M), 1)
+    if s.size < window:
+        return 0.0
+    tangent = np.gradient(camera.project(curve.at(s), "left"), axis=0)
+    sine = np.abs(tangent[:, 1]) / np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-12)
+    held = minimum_filter1d(sine, window, mode="nearest")
+    return float(np.degrees(np.arcsin(min(float(held.max()), 1.0))))
+
+
+def end_disparity_gaps_px(
+    images: tuple[np.ndarray, np.ndarray],
+    left: Resampled,
+    curve: ArcLengthCurve,
+    camera: StereoCamera,
+) -> tuple[float | None, float | None]:
+    """The images' disparity less the reconstruction's (px) at the cut tip and at the far end.
+
+    ``images``: the rectified (left, right) views; ``left``: the left sequence smoothed and
+    resampled every 1 px with its ``observed`` flags; ``curve``: the reconstructed thread. Each
+    value is the median over the end's matched samples; None where the end lies within
+    :data:`BORDER_PX` of the image border or fewer than :data:`MIN_END_MATCHES` samples matched.
+    """
+    prepared = prepare_images(*images)
+    params = PhotometricParams(
+        search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
+    )
+    points = left.points[:, :2]
+    seen = np.flatnonzero(left.observed)
+    path = curve.resample(SAMPLE_STEP_M)
+    path_uv = camera.project(path, "left")
+    tangents = np.gradient(points, axis=0)
+    gaps: list[float | None] = []
+    for index, outermost in ((seen[:END_SAMPLES], 0), (seen[-END_SAMPLES:], -1)):
+        if index.size == 0 or _at_border(points[index[outermost]], camera):
+            gaps.append(None)
+            continue
+        nearest = np.argmin(np.linalg.norm(path_uv[None] - points[index][:, None], axis=2), axis=1)
+        reconstructed = camera.disparity(path[nearest, 2])
+        matches = match_along_rows(*prepared, points[index], tangents[index], reconstructed, params)
+        if matches.matched.sum() < MIN_END_MATCHES:
+            gaps.append(None)
+            continue
+        gaps.append(float(np.median(matches.disparity[matches.matched] - reconstructed[matches.matched])))
+    return gaps[0], gaps[1]
+
+
+def _at_border(uv: np.ndarray, camera: StereoCamera) -> bool:
+    """Whether the left pixel ``uv`` (2,) lies within :data:`BORDER_PX` of the image border."""
+    u, v = float(uv[0]), float(uv[1])
+    return min(u, v, camera.width - 1 - u, camera.height - 1 - v) < BORDER_PX
+
+
+def refuse_contradicted_ends(
+    gaps_px: tuple[float | None, float | None], anchor_deg: float, max_gap_px: float
+) -> None:
+    """Raise EndDisparityError when the thread has no stretch steeper than :data:`ANCHOR_ROW_DEG`
+    (``anchor_deg``, :func:`anchor_row_angle_deg`) and an end's gap (``gaps_px``, tip and far end,
+    from :func:`end_disparity_gaps_px`; None: no evidence) exceeds ``max_gap_px``."""
+    if anchor_deg >= ANCHOR_ROW_DEG:
+        return
+    for end, gap in zip(("cut tip", "far end"), gaps_px, strict=True):
+        if gap is not None and abs(gap) > max_gap_px:
+            raise EndDisparityError(
+                f"no stretch of the thread crosses the image rows at {ANCHOR_ROW_DEG:g} deg or more "
+                f"(the steepest: {anchor_deg:.1f} deg), so its depth rests on where its ends lie in the "
+                f"two views, and the images put its {end} {gap:+.1f} px of disparity from where the "
+                f"masks' sequences do (more than max_end_disparity_gap_px {max_gap_px:g}): an end cut "
+                "short in one view tilts the thread's depth and moves the grasp point along it; turn "
+                "the camera or the thread so that part of it crosses the image rows, or check both "
+                "views' masks at the thread's ends"
+            )

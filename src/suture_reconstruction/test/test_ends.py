@@ -1,0 +1,90 @@
+# SPDX-License-Identifier: Apache-2.0
+"""The thread's ends in the images as the witness of a depth that rests on them
+(suture_reconstruction.ends)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from suture_common.camera import StereoCamera
+from suture_reconstruction import EndDisparityError, ReconstructionParams, reconstruct
+from suture_reconstruction.curve import fit_curve
+from suture_reconstruction.ends import anchor_row_angle_deg, refuse_contradicted_ends
+
+DEPTH = 0.095
+#: Arc length (m) from the tip to the grasp point (ReconstructionParams' default).
+GRASP_ARC = 0.05
+
+
+def straight_thread(row_angle_deg: float, wave: float = 0.0) -> np.ndarray:
+    """An 80 mm thread DEPTH m away at ``row_angle_deg`` to the image rows (m, every 0.05 mm), its
+    cut tip on the right, straight or waving ``wave`` m either side every 20 mm."""
+    s = np.arange(0.0, 0.08, 5e-5)
+    heading = np.radians(row_angle_deg)
+    across = wave * np.sin(2 * np.pi * s / 0.02)
+    xy = np.column_stack([-np.cos(heading) * s, np.sin(heading) * s + across]) + np.array([0.035, -0.005])
+    return np.column_stack([xy, np.full(len(s), DEPTH)])
+
+
+def with_thread(images: tuple[np.ndarray, np.ndarray], camera: StereoCamera, curve: np.ndarray):
+    """The images with a dark 2 px thread drawn along the curve's projection in each view."""
+    drawn = []
+    for image, view in zip(images, ("left", "right"), strict=True):
+        mask = np.zeros(image.shape[:2], np.uint8)
+        uv = np.rint(camera.project(curve, view) * 16).astype(np.int32)
+        cv2.polylines(mask, [uv], False, 255, 2, cv2.LINE_AA, shift=4)
+        alpha = mask[..., None] / 255.0
+        drawn.append(
+            np.clip(image * (1 - alpha) + np.array([40.0, 70.0, 50.0]) * alpha, 0, 255).astype(np.uint8)
+        )
+    return drawn[0], drawn[1]
+
+
+def test_the_anchor_is_the_steepest_stretch_held_over_5_mm():
+    camera = StereoCamera.default(640, 480)
+    assert anchor_row_angle_deg(fit_curve(straight_thread(3.0), 0.0), camera) == pytest.approx(3.0, abs=0.5)
+    bent = straight_thread(3.0)
+    bent[:200, 1] += np.linspace(0.006, 0.0, 200)  # its first 10 mm at about 30 degrees
+    assert anchor_row_angle_deg(fit_curve(bent, 0.0), camera) > 20.0
+
+
+def test_only_an_unanchored_thread_with_an_end_off_the_images_is_refused():
+    refuse_contradicted_ends((None, None), 3.0, 1.5)  # no evidence
+    refuse_contradicted_ends((1.0, -1.2), 3.0, 1.5)
+    refuse_contradicted_ends((6.0, 0.0), 30.0, 1.5)  # a steep stretch measures the depth
+    with pytest.raises(EndDisparityError, match=r"cut tip \+6\.0 px of disparity"):
+        refuse_contradicted_ends((6.0, 0.0), 3.0, 1.5)
+    with pytest.raises(EndDisparityError, match=r"far end -2\.0 px"):
+        refuse_contradicted_ends((0.5, -2.0), 3.0, 1.5)
+
+
+def test_a_thread_along_the_rows_whose_views_sit_a_third_of_a_row_apart_is_refused(
+    exact_views, textured_pair
+):
+    """A thread at 3 degrees to the rows (waving by 1-2 px), its depth resting on its ends: the right
+    view's sequence 0.3 px higher than the left's (one mask's edge sitting lower) changes every
+    pair's disparity by 0.3 / tan(3 deg) = 6 px along the rows, tilts the thread and puts the grasp
+    point more than 5 mm off, while the views still agree on the thread; the images show where its
+    ends are, and it is refused."""
+    camera = StereoCamera.default(640, 480)
+    curve = straight_thread(3.0, wave=0.0003)
+    assert anchor_row_angle_deg(fit_curve(curve, 0.0), camera) < 10.0
+    left, right = exact_views(camera, curve)
+    images = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
+    true_grasp = curve[round(GRASP_ARC / 5e-5)]
+
+    published = reconstruct(left, right, camera, images=images)
+    assert np.linalg.norm(published.grasp_position - true_grasp) < 0.002
+
+    higher = right - np.array([0.0, 0.3])
+    unchecked_ends = ReconstructionParams(max_end_disparity_gap_px=100.0)
+    unchecked = reconstruct(left, higher, camera, unchecked_ends, images=images)
+    assert np.linalg.norm(unchecked.grasp_position - true_grasp) > 0.005
+    assert unchecked.grasp_uncertainty_mm < 5.0  # the views agree: no other check sees it
+    with pytest.raises(EndDisparityError, match=r"cut tip -2\.\d px of disparity"):
+        reconstruct(left, higher, camera, images=images)
+    reconstruct(left, higher, camera)  # without images there is no witness
+    with pytest.raises(ValueError, match="max_end_disparity_gap_px"):
+        ReconstructionParams(max_end_disparity_gap_px=0.0)
