@@ -4,10 +4,12 @@
 Rectified stereo measures a thread's depth only where it crosses the image rows. A thread that
 nowhere crosses them steeply (no stretch of :data:`ANCHOR_ARC_M` at :data:`ANCHOR_ROW_DEG` or
 more) gets its depth from where its two ends lie in each view: the disparity of the cut tip and of
-the far end, carried between them under the shape prior. The masks' ends are the segmentation's
-least certain pixels (a faint tip or end cut short in one view by a few pixels), and with an
-endoscope's 5 mm baseline each pixel of disparity there is 3-9 mm of depth, which tilts the thread
-and moves the grasp point, placed by arc length from the tip, along it.
+the far end, carried between them under the shape prior. Predicted masks disturb both: an end cut
+short in one view by a few pixels, and the two views' masks a fraction of a pixel apart in rows,
+which along a thread at angle a to the rows changes every pair's disparity by that offset / tan(a)
+(0.3 px at 3 degrees: 6 px) while the views still agree. With an endoscope's 5 mm baseline each
+pixel of disparity is 3-9 mm of depth, which tilts the thread and moves the grasp point, placed by
+arc length from the tip, along it.
 
 An end of a thread is a feature in both directions, so the images measure its disparity where the
 masks do not: :func:`end_disparity_gaps_px` matches a window around each end of the left sequence
@@ -129,8 +131,8 @@ def refuse_contradicted_ends(
                 f"no stretch of the thread crosses the image rows at {ANCHOR_ROW_DEG:g} deg or more "
                 f"(the steepest: {anchor_deg:.1f} deg), so its depth rests on where its ends lie in the "
                 f"two views, and the images put its {end} {gap:+.1f} px of disparity from where the "
-                f"masks' sequences do (more than max_end_disparity_gap_px {max_gap_px:g}): an end cut "
-                "short in one view tilts the thread's depth and moves the grasp point along it; turn "
-                "the camera or the thread so that part of it crosses the image rows, or check both "
-                "views' masks at the thread's ends"
+                f"masks' sequences do (more than max_end_disparity_gap_px {max_gap_px:g}): the views' "
+                "masks disagree at the ends or sit apart in rows, which tilts the thread's depth and "
+                "moves the grasp point along it; turn the camera or the thread so that part of it "
+                "crosses the image rows, or check both views' masks"
             )

@@ -56,8 +56,8 @@ class ThreadBehindSurfaceError(ReconstructionError):
 
 class EndDisparityError(ReconstructionError):
     """The thread crosses the image rows nowhere steeply, so its depth rests on its two ends' pairs,
-    and the images put an end at another disparity than the masks' sequences do: the ends, and the
-    depth carried between them, are wrong."""
+    and the images put an end at another disparity than the masks' sequences do: the depth carried
+    between the ends is wrong."""
 
 
 class ImagePairError(ReconstructionError):
