@@ -39,13 +39,12 @@ from suture_reconstruction.curve import ArcLengthCurve
 from suture_reconstruction.errors import EndDisparityError
 from suture_reconstruction.photometric import PhotometricParams, match_along_rows, prepare_images
 from suture_reconstruction.sequences import Resampled
+from suture_reconstruction.uncertainty import SAMPLE_STEP_M, row_sines
 
 #: A stretch of thread at least this steep (deg to the image rows) over ANCHOR_ARC_M measures depth.
 ANCHOR_ROW_DEG = 10.0
 #: Arc (m) a stretch must hold ANCHOR_ROW_DEG over to anchor the thread's depth.
 ANCHOR_ARC_M = 0.005
-#: Spacing (m) of the curve samples whose angle to the rows is read.
-SAMPLE_STEP_M = 0.0005
 #: Outermost seen samples (1 px apart) of the left sequence matched at each end.
 END_SAMPLES = 5
 #: Half-length (px, along the thread) of each end's window: it reaches past the end, so that the
@@ -68,9 +67,7 @@ def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
     window = max(round(ANCHOR_ARC_M / SAMPLE_STEP_M), 1)
     if s.size < window:
         return 0.0
-    tangent = np.gradient(camera.project(curve.at(s), "left"), axis=0)
-    sine = np.abs(tangent[:, 1]) / np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-12)
-    held = minimum_filter1d(sine, window, mode="nearest")
+    held = minimum_filter1d(row_sines(camera.project(curve.at(s), "left")), window, mode="nearest")
     return float(np.degrees(np.arcsin(min(float(held.max()), 1.0))))
 
 

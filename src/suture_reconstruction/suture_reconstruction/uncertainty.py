@@ -234,8 +234,7 @@ def assess_grasp(
     )
 
     uv_left = camera.project(points, "left")
-    tangent = np.gradient(uv_left, axis=0)
-    row_sine = np.abs(tangent[:, 1]) / np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-12)
+    row_sine = row_sines(uv_left)
     sine = float(np.median(row_sine[near]))
     depth_per_px_mm = 1000 * points[at_grasp, 2] ** 2 / (camera.fx * camera.baseline)
     conditioning = depth_per_px_mm * ROW_NOISE_PX / max(sine, MIN_ROW_SINE)
@@ -257,6 +256,12 @@ def assess_grasp(
         unsupported_depth_mm=unsupported,
     )
     return uncertainty, path_not_seen
+
+
+def row_sines(uv: np.ndarray) -> np.ndarray:
+    """(K,) sine of the angle to the image rows of the polyline ``uv`` (K, 2) px at each point."""
+    tangent = np.gradient(uv, axis=0)
+    return np.abs(tangent[:, 1]) / np.maximum(np.hypot(tangent[:, 0], tangent[:, 1]), 1e-12)
 
 
 def _unsupported_depth_mm(points: np.ndarray, row_sine: np.ndarray) -> float:
