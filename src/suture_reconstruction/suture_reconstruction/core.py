@@ -37,8 +37,9 @@ both call. Steps (paper Section II.B end and II.C):
    uncertainty (:mod:`suture_reconstruction.uncertainty`): a thread whose reconstruction starts
    more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, one
    uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
-   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or whose arc
-   from the tip is more than ``max_arc_image_ratio`` times the length its image covers, is refused;
+   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or before
+   which a stretch of 20 mm of arc is more than ``max_arc_image_ratio`` times the length its image
+   covers, is refused;
    so is, where the thread runs along the image rows at the grasp point (its depth not measured
    there), one that lies more than ``max_behind_surface_px`` of disparity behind the textured
    surface beside it (:mod:`suture_reconstruction.surface`; only with images), and, where no
@@ -205,10 +206,10 @@ class ReconstructionParams:
     max_arc_image_ratio: float = field(
         default=2.0,
         metadata=described(
-            "largest ratio of the 3D arc from the cut tip to the grasp point to the length its left image "
-            "covers at the thread's depth (1 for a thread across the viewing rays, 2 for one 60 degrees "
-            "out of the image plane on average); a larger one runs along the viewing rays, where its "
-            "length rests on disparity alone (ArcAlongViewError)",
+            "largest ratio of the 3D arc to the length its left image covers at the thread's depth, over "
+            "any 20 mm of arc between the cut tip and the grasp point (1 for a thread across the viewing "
+            "rays, 2 for one 60 degrees out of the image plane); a larger one runs along the viewing rays, "
+            "where its length rests on disparity alone (ArcAlongViewError)",
             (1.0, 1000.0),
         ),
     )
@@ -409,8 +410,9 @@ def reconstruct(
         A stretch longer than ``params.max_unexplained_arc_mm`` of a view's seen sequence between
         the cut tip and the grasp point lies off the 3D thread's projection.
     ArcAlongViewError
-        The 3D arc from the cut tip to the grasp point is more than ``params.max_arc_image_ratio``
-        times the length its left image covers (it would run along the viewing rays).
+        A stretch of 20 mm of the 3D arc between the cut tip and the grasp point is more than
+        ``params.max_arc_image_ratio`` times the length its left image covers (it would run along
+        the viewing rays).
     ThreadBehindSurfaceError
         With ``images``: the thread runs along the image rows at the grasp point and lies more than
         ``params.max_behind_surface_px`` of disparity behind the surface beside it.

@@ -38,7 +38,7 @@ grasp point a view does not see (GraspNotSeenError), one uncertain by more than
 ``max_grasp_uncertainty_mm`` (UncertainGraspError), one on a thread whose reconstruction
 starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
 which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread
-does not explain (UnexplainedArcError), or whose 3D arc from the tip is more than
+does not explain (UnexplainedArcError), or before which a stretch of 20 mm of 3D arc is more than
 ``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError), or that lies, where
 the thread runs along the image rows, more than ``max_behind_surface_px`` of disparity behind the
 textured surface beside it (ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`), or

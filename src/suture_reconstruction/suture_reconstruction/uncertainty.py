@@ -57,14 +57,19 @@ does not see it, since the 3D thread still lies on both sequences. :func:`refuse
 raises :class:`~suture_reconstruction.errors.UnexplainedArcError` when the longest such stretch
 exceeds ``max_unexplained_arc_mm``.
 
-:func:`arc_image_ratio` compares the 3D arc from the cut tip to the grasp point with the length
-its image covers in the left view (each pixel Z / fx at the thread's depth there). A thread lying
-on tissue in front of the camera runs roughly across the viewing rays and the two agree within a
-few tens of percent; an arc many times longer than its image runs along the rays, where stereo
-measures its length by disparity alone (1 px of disparity is several millimetres of depth), and
-where two views that started at different thread points (cut tips bridged across a gap the mask
-lost that are not the same point, their rows offset) pair their sequences into a steep dive in
-depth. :func:`refuse_arc_along_view` raises
+:func:`arc_image_ratio` compares the 3D arc with the length its image covers in the left view
+(each pixel Z / fx at the thread's depth there), over every stretch of :data:`RATIO_ARC_M` between
+the cut tip and the grasp point, and returns the largest ratio. A thread lying on tissue in front
+of the camera runs roughly across the viewing rays and the two agree within a few tens of percent;
+an arc many times longer than its image runs along the rays, where stereo measures its length by
+disparity alone (1 px of disparity is several millimetres of depth). Two views that started at
+different thread points (cut tips bridged across a gap the mask lost that are not the same point,
+their rows offset) pair their sequences into a steep dive in depth; two views that went round a
+hook at the tip in opposite ways (down one arm first in one view, down the other in the other)
+pair each arm with its neighbour, and the depth zigzags over the hook's few millimetres of image.
+Either way the arc gained moves the grasp point, placed by arc length from the tip, along the
+thread. Over the whole arc to the grasp point a hook's zigzag is diluted by the flat thread
+beyond it; over a stretch of :data:`RATIO_ARC_M` it is not. :func:`refuse_arc_along_view` raises
 :class:`~suture_reconstruction.errors.ArcAlongViewError` when the ratio exceeds
 ``max_arc_image_ratio``.
 
@@ -114,6 +119,9 @@ TIP_MATCH_PX = 3.0
 EXPLAINED_PX = 3.0
 #: Spacing (m) of the curve samples the assessment projects into the views.
 SAMPLE_STEP_M = 0.0005
+#: Arc (m) of the stretches whose 3D length is compared with their image's (:func:`arc_image_ratio`):
+#: a hook at the cut tip lies within about 15 mm of it.
+RATIO_ARC_M = 0.02
 #: Arc (m) over which the views must disagree for the disagreement term to count it: a blob or
 #: notch of one view's mask moves its centreline over a few pixels, the other strand at a
 #: crossing or a loop one view skipped over much more than 2 mm (about 10 px at 100 mm).
@@ -407,26 +415,32 @@ def refuse_unexplained_arc(arc_mm: float, view: str, max_arc_mm: float) -> None:
 
 
 def arc_image_ratio(curve: ArcLengthCurve, camera: StereoCamera, grasp_arc_length: float) -> float:
-    """The 3D arc from the cut tip to the grasp point divided by the length of its image in the
-    left view, each pixel taken as Z / fx m at the depth of the thread there; 1.0 for an arc too
-    short to measure (module docstring)."""
+    """The largest ratio of 3D arc to the length of its image in the left view (each pixel taken
+    as Z / fx m at the depth of the thread there) over the stretches of :data:`RATIO_ARC_M`
+    between the cut tip and the grasp point, or over that whole arc where it is shorter; 1.0 for
+    an arc too short to measure (module docstring)."""
     s = np.arange(0.0, min(curve.length, grasp_arc_length) + 1e-12, SAMPLE_STEP_M)
     if s.size < 2:
         return 1.0
     points = curve.at(s)
     uv = camera.project(points, "left")
     depth = 0.5 * (points[1:, 2] + points[:-1, 2])
-    image_m = float(np.sum(np.hypot(*np.diff(uv, axis=0).T) * depth) / camera.fx)
-    return float(s[-1]) / max(image_m, 1e-12)
+    arc = np.concatenate(([0.0], np.cumsum(np.diff(s))))
+    image = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(uv, axis=0).T) * depth / camera.fx)))
+    window = min(max(round(RATIO_ARC_M / SAMPLE_STEP_M), 1), s.size - 1)
+    stretch_arc = arc[window:] - arc[:-window]
+    stretch_image = image[window:] - image[:-window]
+    return float(np.max(stretch_arc / np.maximum(stretch_image, 1e-12)))
 
 
 def refuse_arc_along_view(ratio: float, max_ratio: float) -> None:
     """Raise ArcAlongViewError when ``ratio`` (:func:`arc_image_ratio`) exceeds ``max_ratio``."""
     if ratio > max_ratio:
         raise ArcAlongViewError(
-            f"the 3D arc from the cut tip to the grasp point is {ratio:.1f} times the length its left "
-            f"image covers (more than max_arc_image_ratio {max_ratio:g}): the thread would run along "
-            "the viewing rays, where its length, which places the grasp point, rests on disparity "
-            "alone; usually the two views' sequences start at different thread points (check both "
-            "views' masks and tips)"
+            f"a stretch of {1000 * RATIO_ARC_M:g} mm of the 3D arc between the cut tip and the grasp "
+            f"point is {ratio:.1f} times the length its left image covers (more than "
+            f"max_arc_image_ratio {max_ratio:g}): the thread would run along the viewing rays, where "
+            "its length, which places the grasp point, rests on disparity alone; usually the two "
+            "views' sequences start at different thread points or go round a hook at the tip in "
+            "opposite ways (check both views' masks and tips)"
         )

@@ -283,3 +283,21 @@ def test_an_arc_along_the_viewing_rays_is_refused(exact_views):
         reconstruct(left, right, camera, params)
     with pytest.raises(ValueError, match="max_arc_image_ratio"):
         ReconstructionParams(max_arc_image_ratio=0.5)
+
+
+def test_a_stretch_along_the_viewing_rays_before_the_grasp_point_is_refused(exact_views):
+    camera = StereoCamera.default(640, 480)
+    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
+    step = 5e-5
+    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
+    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
+    # 20 mm from the cut tip 67 degrees out of the image plane, then across the viewing rays. Over
+    # the whole 50 mm to the grasp point the 3D arc is only about 1.6 times its image, so the
+    # diving stretch is seen only over a window of its own length.
+    dive = np.array([0.0, 0.0, 0.07]) + np.arange(0.0, 0.02, step)[:, None] * along
+    thread = np.vstack([dive, dive[-1] + np.arange(step, 0.06, step)[:, None] * across])
+    left, right = exact_views(camera, thread)
+    result = reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
+    assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
+    with pytest.raises(ArcAlongViewError, match=r"20 mm of the 3D arc .* 2\.\d times the length"):
+        reconstruct(left, right, camera, ReconstructionParams(**lenient))
