@@ -425,10 +425,9 @@ def arc_image_ratio(curve: ArcLengthCurve, camera: StereoCamera, grasp_arc_lengt
     points = curve.at(s)
     uv = camera.project(points, "left")
     depth = 0.5 * (points[1:, 2] + points[:-1, 2])
-    arc = np.concatenate(([0.0], np.cumsum(np.diff(s))))
     image = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(uv, axis=0).T) * depth / camera.fx)))
     window = min(max(round(RATIO_ARC_M / SAMPLE_STEP_M), 1), s.size - 1)
-    stretch_arc = arc[window:] - arc[:-window]
+    stretch_arc = s[window:] - s[:-window]
     stretch_image = image[window:] - image[:-window]
     return float(np.max(stretch_arc / np.maximum(stretch_image, 1e-12)))
 
