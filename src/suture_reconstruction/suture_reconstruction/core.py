@@ -92,6 +92,7 @@ from suture_reconstruction.shape_graph import ShapeGraphParams, ShapePath, optim
 from suture_reconstruction.surface import refuse_behind_surface, surface_gap_px
 from suture_reconstruction.triangulation import Triangulated, resample_runs, triangulate_supported
 from suture_reconstruction.uncertainty import (
+    RATIO_ARC_M,
     UNSUPPORTED_ROW_DEG,
     GraspUncertainty,
     arc_image_ratio,
@@ -207,9 +208,9 @@ class ReconstructionParams:
         default=2.0,
         metadata=described(
             "largest ratio of the 3D arc to the length its left image covers at the thread's depth, over "
-            "any 20 mm of arc between the cut tip and the grasp point (1 for a thread across the viewing "
-            "rays, 2 for one 60 degrees out of the image plane); a larger one runs along the viewing rays, "
-            "where its length rests on disparity alone (ArcAlongViewError)",
+            f"any {1000 * RATIO_ARC_M:g} mm of arc between the cut tip and the grasp point (1 for a thread "
+            "across the viewing rays, 2 for one 60 degrees out of the image plane); a larger one runs "
+            "along the viewing rays, where its length rests on disparity alone (ArcAlongViewError)",
             (1.0, 1000.0),
         ),
     )
