@@ -15,7 +15,9 @@ both call. Steps (paper Section II.B end and II.C):
    given the rectified images too, the disparity is then refined by matching
    the thread's image along the rows (:mod:`suture_reconstruction.photometric`):
    the mask-traced centrelines leave biases of 0.5-3 px over stretches, each
-   pixel 4-5 mm of depth at 110 mm with a 5 mm baseline.
+   pixel 4-5 mm of depth at 110 mm with a 5 mm baseline; an end whose nearest steep
+   stretch lies far along the thread is matched in the images too, with a window that
+   holds its termination (:func:`~suture_reconstruction.ends.match_unanchored_ends`).
    The depth must follow precise pairs closely: where the thread is lifted
    over the other strand 1 px of disparity is about 3 mm of depth, and a
    flattened lift is arc length missing before the grasp point, which moves
@@ -72,6 +74,7 @@ from suture_reconstruction.ends import (
     ANCHOR_ROW_DEG,
     anchor_row_angle_deg,
     end_disparity_gaps_px,
+    match_unanchored_ends,
     refuse_contradicted_ends,
 )
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
@@ -459,9 +462,22 @@ def reconstruct(
     timer.lap("pairing")
     image_matches = 0
     if images is not None:
+        mask_disparity = disparity
         disparity, image_matches = refine_disparity(
-            images, left.points, left.observed, disparity, pairs, params.disparity, params.photometric
+            images, left.points, left.observed, mask_disparity, pairs, params.disparity, params.photometric
         )
+        end_matches = match_unanchored_ends(images, left, disparity, camera)
+        if end_matches is not None:
+            disparity, image_matches = refine_disparity(
+                images,
+                left.points,
+                left.observed,
+                mask_disparity,
+                pairs,
+                params.disparity,
+                params.photometric,
+                end_matches,
+            )
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
     rejected["unsupported"] = triangulated.unsupported

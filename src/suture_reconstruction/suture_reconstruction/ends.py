@@ -26,6 +26,15 @@ from where the reconstruction has it. A thread that crosses the rows somewhere i
 depth is measured there, and the end matches, which are weak on a faint thread on blurred tissue,
 would only add false refusals.
 
+Such a thread can still run along the rows for most of its length from an end, so that the end's
+depth rests on that end's pair, carried over tens of millimetres to the nearest steep stretch: a
+mask cut 3 px short at the tip in one view is 3 px of disparity there, and the grasp point 50 mm
+along moves with it. :func:`match_unanchored_ends` matches the same window round each end whose
+nearest steep stretch lies at least :data:`END_LEVER_M` of arc away, and the refinement
+(:func:`~suture_reconstruction.photometric.refine_disparity`) fuses those matches in place of the
+end's pair, with the weight of its most confident match: there the images, not the masks, say
+where the end is.
+
 Units: metres for 3D points, pixels in the images, degrees for angles.
 """
 
@@ -37,6 +46,7 @@ from scipy.ndimage import minimum_filter1d
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
 from suture_reconstruction.errors import EndDisparityError
+from suture_reconstruction.pairing import Disparity
 from suture_reconstruction.photometric import PhotometricParams, match_along_rows, prepare_images
 from suture_reconstruction.sequences import Resampled
 from suture_reconstruction.uncertainty import SAMPLE_STEP_M, row_sines
@@ -58,6 +68,9 @@ END_SEARCH_PX = 10
 MIN_END_MATCHES = 3
 #: Ends closer than this (px) to the image border are where the image, not the thread, stops.
 BORDER_PX = 12.0
+#: An end whose nearest stretch steeper than ANCHOR_ROW_DEG lies at least this far (m of arc)
+#: along the thread rests its depth on the end's pair, and is matched in the images.
+END_LEVER_M = 0.012
 
 
 def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
@@ -69,6 +82,60 @@ def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
         return 0.0
     held = minimum_filter1d(row_sines(camera.project(curve.at(s), "left")), window, mode="nearest")
     return float(np.degrees(np.arcsin(min(float(held.max()), 1.0))))
+
+
+def match_unanchored_ends(
+    images: tuple[np.ndarray, np.ndarray],
+    left: Resampled,
+    disparity: Disparity,
+    camera: StereoCamera,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The images' disparity at each end of a thread whose depth there rests on the end's pair.
+
+    ``left``: the left sequence resampled every 1 px with its ``observed`` flags; ``disparity``:
+    the fused disparity along it. An end qualifies when the thread crosses the image rows at
+    :data:`ANCHOR_ROW_DEG` or more over :data:`ANCHOR_ARC_M` somewhere, but not within
+    :data:`END_LEVER_M` of arc from that end (arc read in pixels at the thread's median
+    disparity), and it lies away from the image border. Its :data:`END_SAMPLES` outermost
+    supported samples are matched along the rows with the window that holds the termination
+    (:func:`end_disparity_gaps_px`' window), within :data:`END_SEARCH_PX` of ``disparity``.
+    Returns (rows (E,) int, disparities (E,) px) of the matched samples, or None where no end
+    qualifies or none matched :data:`MIN_END_MATCHES` samples. A thread with no steep stretch
+    at all is left to :func:`refuse_contradicted_ends`.
+    """
+    points = left.points[:, :2]
+    supported = np.flatnonzero(left.observed & disparity.supported)
+    if supported.size < 2:
+        return None
+    px_per_m = float(np.median(disparity.value[supported])) / camera.baseline
+    window = max(round(ANCHOR_ARC_M * px_per_m), 1)
+    steep = minimum_filter1d(row_sines(points), window, mode="nearest") >= np.sin(np.radians(ANCHOR_ROW_DEG))
+    anchored = np.flatnonzero(steep & left.observed)
+    if anchored.size == 0:
+        return None
+    lever = END_LEVER_M * px_per_m
+    ends = []
+    if anchored[0] - supported[0] >= lever:
+        ends.append((supported[:END_SAMPLES], supported[0]))
+    if supported[-1] - anchored[-1] >= lever:
+        ends.append((supported[-END_SAMPLES:], supported[-1]))
+    ends = [index for index, outermost in ends if not _at_border(points[outermost], camera)]
+    if not ends:
+        return None
+    prepared = prepare_images(*images)
+    params = PhotometricParams(
+        search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
+    )
+    tangents = np.gradient(points, axis=0)
+    rows, values = [], []
+    for index in ends:
+        matches = match_along_rows(*prepared, points[index], tangents[index], disparity.value[index], params)
+        if matches.matched.sum() >= MIN_END_MATCHES:
+            rows.append(index[matches.matched])
+            values.append(matches.disparity[matches.matched])
+    if not rows:
+        return None
+    return np.concatenate(rows), np.concatenate(values)
 
 
 def end_disparity_gaps_px(

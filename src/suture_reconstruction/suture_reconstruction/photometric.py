@@ -278,6 +278,7 @@ def refine_disparity(
     pairs: Pairs,
     smoothing: DisparitySmoothing,
     params: PhotometricParams | None = None,
+    end_matches: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[Disparity, int]:
     """The disparity along the N left samples ``points`` (N, 2), refined by the images.
 
@@ -285,7 +286,13 @@ def refine_disparity(
     :func:`suture_reconstruction.core.reconstruct`; ``observed`` (N,) False inside jumps;
     ``initial``: the mask pairs' regularised disparity; ``pairs``: those pairs. Returns
     the regularised fused disparity and the number of image matches used (0: ``initial``
-    is returned unchanged: fewer than :data:`MIN_MATCHES` samples could be matched).
+    is returned unchanged: fewer than :data:`MIN_MATCHES` samples could be matched and no
+    ``end_matches`` were given).
+
+    ``end_matches``: (rows (E,) int, disparities (E,) px) of the thread's ends matched in the
+    images (:func:`suture_reconstruction.ends.match_unanchored_ends`), fused in place of the
+    pairs at those samples with the weight of the most confident match (``max_confidence``);
+    with too few matches along the thread the mask pairs keep their full weight beside them.
     """
     params = params or PhotometricParams()
     left, right = prepare_images(*images, blur_sigma_px=params.blur_sigma_px)
@@ -301,17 +308,23 @@ def refine_disparity(
         & (np.abs(matches.disparity - initial.value[index]) <= params.max_change_px)
     )
     rows = index[keep]
+    values = matches.disparity[keep]
+    weight = np.minimum(matches.confidence[keep], params.max_confidence)
+    pair_weight = params.mask_pair_weight
     if rows.size < MIN_MATCHES:
-        return initial, 0
+        if end_matches is None:
+            return initial, 0
+        rows, values, weight, pair_weight = rows[:0], values[:0], weight[:0], 1.0
     own = np.isin(pairs.rows, rows)
     rows = np.concatenate([rows, pairs.rows[~own]])
-    values = np.concatenate([matches.disparity[keep], pairs.disparity[~own]])
-    weight = np.concatenate(
-        [
-            np.minimum(matches.confidence[keep], params.max_confidence),
-            params.mask_pair_weight * pairs.weight[~own],
-        ]
-    )
+    values = np.concatenate([values, pairs.disparity[~own]])
+    weight = np.concatenate([weight, pair_weight * pairs.weight[~own]])
+    if end_matches is not None:
+        end_rows, end_values = end_matches
+        replaced = np.isin(rows, end_rows)
+        rows = np.concatenate([rows[~replaced], end_rows])
+        values = np.concatenate([values[~replaced], end_values])
+        weight = np.concatenate([weight[~replaced], np.full(len(end_rows), params.max_confidence)])
     order = np.argsort(rows, kind="stable")
     fused = regularise_disparity(
         len(points), rows[order], values[order], weight[order], smoothing, params.noise_floor_px

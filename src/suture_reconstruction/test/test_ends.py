@@ -11,7 +11,10 @@ import pytest
 from suture_common.camera import StereoCamera
 from suture_reconstruction import EndDisparityError, ReconstructionParams, reconstruct
 from suture_reconstruction.curve import fit_curve
-from suture_reconstruction.ends import anchor_row_angle_deg, refuse_contradicted_ends
+from suture_reconstruction.ends import anchor_row_angle_deg, match_unanchored_ends, refuse_contradicted_ends
+from suture_reconstruction.pairing import DisparitySmoothing, Pairs, regularise_disparity
+from suture_reconstruction.photometric import refine_disparity
+from suture_reconstruction.sequences import resample
 
 DEPTH = 0.095
 #: Arc length (m) from the tip to the grasp point (ReconstructionParams' default).
@@ -25,6 +28,17 @@ def straight_thread(row_angle_deg: float, wave: float = 0.0) -> np.ndarray:
     heading = np.radians(row_angle_deg)
     across = wave * np.sin(2 * np.pi * s / 0.02)
     xy = np.column_stack([-np.cos(heading) * s, np.sin(heading) * s + across]) + np.array([0.035, -0.005])
+    return np.column_stack([xy, np.full(len(s), DEPTH)])
+
+
+def along_rows_then_steep(flat_deg: float = 2.0, steep_deg: float = 45.0) -> np.ndarray:
+    """An 85 mm thread DEPTH m away, its cut tip on the right: its first 55 mm at ``flat_deg`` to
+    the image rows, then bending over 10 mm to ``steep_deg`` (m, every 0.05 mm)."""
+    s = np.arange(0.0, 0.085, 5e-5)
+    ramp = np.clip((s - 0.055) / 0.01, 0.0, 1.0)
+    heading = np.radians(flat_deg + (steep_deg - flat_deg) * ramp * ramp * (3 - 2 * ramp))
+    step = np.column_stack([-np.cos(heading), np.sin(heading)]) * 5e-5
+    xy = np.cumsum(step, axis=0) - step[0] + np.array([0.035, 0.0])
     return np.column_stack([xy, np.full(len(s), DEPTH)])
 
 
@@ -88,3 +102,58 @@ def test_a_thread_along_the_rows_whose_views_sit_a_third_of_a_row_apart_is_refus
     reconstruct(left, higher, camera)  # without images there is no witness
     with pytest.raises(ValueError, match="max_end_disparity_gap_px"):
         ReconstructionParams(max_end_disparity_gap_px=0.0)
+
+
+def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(exact_views, textured_pair):
+    """The first 55 mm from the cut tip run along the rows, so the tip's depth rests on the tip's
+    pair: a predicted mask cut 3 px short at the tip in one view is 3 px of disparity (about 10
+    mm of depth), and along the rows the thread's own windows match themselves at any shift. The
+    window round the tip, which holds its termination, finds the true disparity in the images
+    and the fused disparity follows it; a thread steep at both ends, or nowhere, is not matched
+    here."""
+    camera = StereoCamera.default(640, 480)
+    curve = along_rows_then_steep(flat_deg=0.0)
+    left, _ = exact_views(camera, curve)
+    images = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
+    resampled = resample(left, 1.0, 10.0)
+    true_disparity = float(camera.disparity(DEPTH))
+    steep_from = round(0.055 * camera.fx / DEPTH)  # left samples (1 px) before the bend
+    tip_off = np.full(len(resampled.arc), true_disparity)
+    tip_off[:steep_from] += 3.0 * (1.0 - np.arange(steep_from) / steep_from)  # 3 px at the tip, 0 at the bend
+    wrong = regularise_disparity(
+        len(tip_off), np.arange(len(tip_off)), tip_off, np.ones(len(tip_off)), DisparitySmoothing()
+    )
+
+    matched = match_unanchored_ends(images, resampled, wrong, camera)
+    assert matched is not None
+    rows, values = matched
+    assert rows.tolist() == list(range(5))  # the tip's 5 outermost samples; the far end is steep
+    assert np.abs(values - true_disparity).max() < 0.3
+
+    for anchored_or_not in (straight_thread(30.0), straight_thread(3.0)):
+        view, _ = exact_views(camera, anchored_or_not)
+        samples = resample(view, 1.0, 10.0)
+        flat = np.full(len(samples.arc), true_disparity)
+        fit = regularise_disparity(
+            len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
+        )
+        thread_images = with_thread(textured_pair(camera, 20), camera, anchored_or_not)
+        assert match_unanchored_ends(thread_images, samples, fit, camera) is None
+
+    steep = np.arange(steep_from, len(tip_off))
+    pairs = Pairs(  # the tip's pair 3 px off (the cut mask), every steep sample's pair right
+        rows=np.r_[0, steep],
+        t=np.r_[0, steep].astype(float),
+        disparity=np.r_[true_disparity + 3.0, np.full(steep.size, true_disparity)],
+        weight=np.r_[0.25, np.ones(steep.size)],
+        predicted_t=np.arange(len(tip_off), dtype=float),
+        rejected={},
+    )
+    fused, _ = refine_disparity(
+        images, resampled.points, resampled.observed, wrong, pairs, DisparitySmoothing()
+    )
+    refined, _ = refine_disparity(
+        images, resampled.points, resampled.observed, wrong, pairs, DisparitySmoothing(), end_matches=matched
+    )
+    assert abs(refined.value[0] - true_disparity) < 0.5
+    assert not abs(fused.value[0] - true_disparity) < 1.0  # without them: unsupported (NaN) or off

@@ -16,9 +16,11 @@ LENIENT = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0, m
 
 def thread_along_rows() -> np.ndarray:
     """A thread 95 mm away (m, every 0.05 mm): 20 mm from the tip at 30 degrees to the image rows,
-    then 60 mm at 1 degree (the grasp point, 50 mm from the tip, on the stretch along the rows)."""
+    then 50 mm at 1 degree (the grasp point, 50 mm from the tip, on the stretch along the rows),
+    then 10 mm at 30 degrees again, so that no end's depth rests on its pair alone
+    (:func:`suture_reconstruction.ends.match_unanchored_ends` leaves it to the pairs)."""
     s = np.arange(0.0, 0.08, 5e-5)
-    heading = np.radians(np.where(s < 0.02, 30.0, 1.0))
+    heading = np.radians(np.where((s < 0.02) | (s >= 0.07), 30.0, 1.0))
     xy = np.cumsum(np.column_stack([-np.cos(heading), np.sin(heading)]) * 5e-5, axis=0)
     return np.column_stack([xy + np.array([0.035, -0.01]), np.full(len(s), 0.095)])
 
