@@ -71,6 +71,10 @@ BORDER_PX = 12.0
 #: An end whose nearest stretch steeper than ANCHOR_ROW_DEG lies at least this far (m of arc)
 #: along the thread rests its depth on the end's pair, and is matched in the images.
 END_LEVER_M = 0.012
+#: The matching of an end's window: it holds the termination, searched about the given disparity.
+END_WINDOW = PhotometricParams(
+    search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
+)
 
 
 def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
@@ -114,22 +118,21 @@ def match_unanchored_ends(
     if anchored.size == 0:
         return None
     lever = END_LEVER_M * px_per_m
-    ends = []
+    unanchored = []
     if anchored[0] - supported[0] >= lever:
-        ends.append((supported[:END_SAMPLES], supported[0]))
+        unanchored.append((supported[:END_SAMPLES], supported[0]))
     if supported[-1] - anchored[-1] >= lever:
-        ends.append((supported[-END_SAMPLES:], supported[-1]))
-    ends = [index for index, outermost in ends if not _at_border(points[outermost], camera)]
-    if not ends:
+        unanchored.append((supported[-END_SAMPLES:], supported[-1]))
+    windows = [index for index, outermost in unanchored if not _at_border(points[outermost], camera)]
+    if not windows:
         return None
     prepared = prepare_images(*images)
-    params = PhotometricParams(
-        search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
-    )
     tangents = np.gradient(points, axis=0)
     rows, values = [], []
-    for index in ends:
-        matches = match_along_rows(*prepared, points[index], tangents[index], disparity.value[index], params)
+    for index in windows:
+        matches = match_along_rows(
+            *prepared, points[index], tangents[index], disparity.value[index], END_WINDOW
+        )
         if matches.matched.sum() >= MIN_END_MATCHES:
             rows.append(index[matches.matched])
             values.append(matches.disparity[matches.matched])
@@ -152,9 +155,6 @@ def end_disparity_gaps_px(
     :data:`BORDER_PX` of the image border or fewer than :data:`MIN_END_MATCHES` samples matched.
     """
     prepared = prepare_images(*images)
-    params = PhotometricParams(
-        search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
-    )
     points = left.points[:, :2]
     seen = np.flatnonzero(left.observed)
     path = curve.resample(SAMPLE_STEP_M)
@@ -167,7 +167,7 @@ def end_disparity_gaps_px(
             continue
         nearest = np.argmin(np.linalg.norm(path_uv[None] - points[index][:, None], axis=2), axis=1)
         reconstructed = camera.disparity(path[nearest, 2])
-        matches = match_along_rows(*prepared, points[index], tangents[index], reconstructed, params)
+        matches = match_along_rows(*prepared, points[index], tangents[index], reconstructed, END_WINDOW)
         if matches.matched.sum() < MIN_END_MATCHES:
             gaps.append(None)
             continue

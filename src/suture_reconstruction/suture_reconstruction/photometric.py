@@ -315,6 +315,7 @@ def refine_disparity(
         if end_matches is None:
             return initial, 0
         rows, values, weight, pair_weight = rows[:0], values[:0], weight[:0], 1.0
+    used = rows.size
     own = np.isin(pairs.rows, rows)
     rows = np.concatenate([rows, pairs.rows[~own]])
     values = np.concatenate([values, pairs.disparity[~own]])
@@ -329,4 +330,4 @@ def refine_disparity(
     fused = regularise_disparity(
         len(points), rows[order], values[order], weight[order], smoothing, params.noise_floor_px
     )
-    return fused, int(keep.sum())
+    return fused, int(used)
