@@ -462,22 +462,16 @@ def reconstruct(
     timer.lap("pairing")
     image_matches = 0
     if images is not None:
-        mask_disparity = disparity
         disparity, image_matches = refine_disparity(
-            images, left.points, left.observed, mask_disparity, pairs, params.disparity, params.photometric
+            images,
+            left.points,
+            left.observed,
+            disparity,
+            pairs,
+            params.disparity,
+            params.photometric,
+            end_matcher=lambda fused: match_unanchored_ends(images, left, fused, camera),
         )
-        end_matches = match_unanchored_ends(images, left, disparity, camera)
-        if end_matches is not None:
-            disparity, image_matches = refine_disparity(
-                images,
-                left.points,
-                left.observed,
-                mask_disparity,
-                pairs,
-                params.disparity,
-                params.photometric,
-                end_matches,
-            )
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)
     rejected["unsupported"] = triangulated.unsupported

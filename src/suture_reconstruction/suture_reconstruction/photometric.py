@@ -52,6 +52,7 @@ top-left pixel at (0, 0); disparities in pixels (u_left - u_right).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -278,21 +279,22 @@ def refine_disparity(
     pairs: Pairs,
     smoothing: DisparitySmoothing,
     params: PhotometricParams | None = None,
-    end_matches: tuple[np.ndarray, np.ndarray] | None = None,
+    end_matcher: Callable[[Disparity], tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> tuple[Disparity, int]:
     """The disparity along the N left samples ``points`` (N, 2), refined by the images.
 
     ``images``: the rectified (left, right) views as given to
     :func:`suture_reconstruction.core.reconstruct`; ``observed`` (N,) False inside jumps;
     ``initial``: the mask pairs' regularised disparity; ``pairs``: those pairs. Returns
-    the regularised fused disparity and the number of image matches used (0: ``initial``
-    is returned unchanged: fewer than :data:`MIN_MATCHES` samples could be matched and no
-    ``end_matches`` were given).
+    the regularised fused disparity and the number of image matches used (0: fewer than
+    :data:`MIN_MATCHES` samples could be matched, and ``initial`` is the fused disparity).
 
-    ``end_matches``: (rows (E,) int, disparities (E,) px) of the thread's ends matched in the
-    images (:func:`suture_reconstruction.ends.match_unanchored_ends`), fused in place of the
-    pairs at those samples with the weight of the most confident match (``max_confidence``);
-    with too few matches along the thread the mask pairs keep their full weight beside them.
+    ``end_matcher``: given the fused disparity, the thread's ends matched in the images as
+    (rows (E,) int, disparities (E,) px) or None
+    (:func:`suture_reconstruction.ends.match_unanchored_ends`); those are fused again with the
+    same matches, in place of the pairs at their samples and with the weight of the most
+    confident match (``max_confidence``); with too few matches along the thread the mask pairs
+    keep their full weight beside them.
     """
     params = params or PhotometricParams()
     left, right = prepare_images(*images, blur_sigma_px=params.blur_sigma_px)
@@ -312,22 +314,34 @@ def refine_disparity(
     weight = np.minimum(matches.confidence[keep], params.max_confidence)
     pair_weight = params.mask_pair_weight
     if rows.size < MIN_MATCHES:
-        if end_matches is None:
-            return initial, 0
         rows, values, weight, pair_weight = rows[:0], values[:0], weight[:0], 1.0
     used = rows.size
     own = np.isin(pairs.rows, rows)
     rows = np.concatenate([rows, pairs.rows[~own]])
     values = np.concatenate([values, pairs.disparity[~own]])
     weight = np.concatenate([weight, pair_weight * pairs.weight[~own]])
-    if end_matches is not None:
-        end_rows, end_values = end_matches
-        replaced = np.isin(rows, end_rows)
-        rows = np.concatenate([rows[~replaced], end_rows])
-        values = np.concatenate([values[~replaced], end_values])
-        weight = np.concatenate([weight[~replaced], np.full(len(end_rows), params.max_confidence)])
+    fused = initial if used == 0 else _fuse(len(points), rows, values, weight, smoothing, params)
+    end_matches = end_matcher(fused) if end_matcher is not None else None
+    if end_matches is None:
+        return fused, used
+    end_rows, end_values = end_matches
+    replaced = np.isin(rows, end_rows)
+    rows = np.concatenate([rows[~replaced], end_rows])
+    values = np.concatenate([values[~replaced], end_values])
+    weight = np.concatenate([weight[~replaced], np.full(len(end_rows), params.max_confidence)])
+    return _fuse(len(points), rows, values, weight, smoothing, params), used
+
+
+def _fuse(
+    n: int,
+    rows: np.ndarray,
+    values: np.ndarray,
+    weight: np.ndarray,
+    smoothing: DisparitySmoothing,
+    params: PhotometricParams,
+) -> Disparity:
+    """The disparity regularised over ``n`` samples through the observations (rows, values, weight)."""
     order = np.argsort(rows, kind="stable")
-    fused = regularise_disparity(
-        len(points), rows[order], values[order], weight[order], smoothing, params.noise_floor_px
+    return regularise_disparity(
+        n, rows[order], values[order], weight[order], smoothing, params.noise_floor_px
     )
-    return fused, int(used)

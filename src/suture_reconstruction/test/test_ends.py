@@ -153,7 +153,13 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         images, resampled.points, resampled.observed, wrong, pairs, DisparitySmoothing()
     )
     refined, _ = refine_disparity(
-        images, resampled.points, resampled.observed, wrong, pairs, DisparitySmoothing(), end_matches=matched
+        images,
+        resampled.points,
+        resampled.observed,
+        wrong,
+        pairs,
+        DisparitySmoothing(),
+        end_matcher=lambda fused: matched,
     )
     assert abs(refined.value[0] - true_disparity) < 0.5
     assert not abs(fused.value[0] - true_disparity) < 1.0  # without them: unsupported (NaN) or off
