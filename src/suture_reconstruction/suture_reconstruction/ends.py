@@ -84,8 +84,14 @@ def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
     window = max(round(ANCHOR_ARC_M / SAMPLE_STEP_M), 1)
     if s.size < window:
         return 0.0
-    held = minimum_filter1d(row_sines(camera.project(curve.at(s), "left")), window, mode="nearest")
+    held = _held_row_sines(camera.project(curve.at(s), "left"), window)
     return float(np.degrees(np.arcsin(min(float(held.max()), 1.0))))
+
+
+def _held_row_sines(uv: np.ndarray, window: int) -> np.ndarray:
+    """(K,) the smallest sine of the angle to the image rows of the polyline ``uv`` (K, 2) px over
+    the ``window`` points round each point: the steepness a stretch holds there."""
+    return minimum_filter1d(row_sines(uv), window, mode="nearest")
 
 
 def match_unanchored_ends(
@@ -113,7 +119,7 @@ def match_unanchored_ends(
         return None
     px_per_m = float(np.median(disparity.value[supported])) / camera.baseline
     window = max(round(ANCHOR_ARC_M * px_per_m), 1)
-    steep = minimum_filter1d(row_sines(points), window, mode="nearest") >= np.sin(np.radians(ANCHOR_ROW_DEG))
+    steep = _held_row_sines(points, window) >= np.sin(np.radians(ANCHOR_ROW_DEG))
     anchored = np.flatnonzero(steep & left.observed)
     if anchored.size == 0:
         return None
