@@ -95,13 +95,15 @@ def _held_row_sines(uv: np.ndarray, window: int) -> np.ndarray:
 
 
 def match_unanchored_ends(
-    images: tuple[np.ndarray, np.ndarray],
+    prepared: tuple[np.ndarray, np.ndarray],
     left: Resampled,
     disparity: Disparity,
     camera: StereoCamera,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The images' disparity at each end of a thread whose depth there rests on the end's pair.
 
+    ``prepared``: the rectified (left, right) views as
+    :func:`~suture_reconstruction.photometric.prepare_images` blurs them (the refinement's own);
     ``left``: the left sequence resampled every 1 px with its ``observed`` flags; ``disparity``:
     the fused disparity along it. An end qualifies when the thread crosses the image rows at
     :data:`ANCHOR_ROW_DEG` or more over :data:`ANCHOR_ARC_M` somewhere, but not within
@@ -132,7 +134,6 @@ def match_unanchored_ends(
     windows = [index for index, outermost in unanchored if not _at_border(points[outermost], camera)]
     if not windows:
         return None
-    prepared = prepare_images(*images)
     tangents = np.gradient(points, axis=0)
     rows, values = [], []
     for index in windows:

@@ -279,7 +279,8 @@ def refine_disparity(
     pairs: Pairs,
     smoothing: DisparitySmoothing,
     params: PhotometricParams | None = None,
-    end_matcher: Callable[[Disparity], tuple[np.ndarray, np.ndarray] | None] | None = None,
+    end_matcher: Callable[[Disparity, tuple[np.ndarray, np.ndarray]], tuple[np.ndarray, np.ndarray] | None]
+    | None = None,
 ) -> tuple[Disparity, int]:
     """The disparity along the N left samples ``points`` (N, 2), refined by the images.
 
@@ -289,8 +290,8 @@ def refine_disparity(
     the regularised fused disparity and the number of image matches used (0: fewer than
     :data:`MIN_MATCHES` samples could be matched, and ``initial`` is the fused disparity).
 
-    ``end_matcher``: given the fused disparity, the thread's ends matched in the images as
-    (rows (E,) int, disparities (E,) px) or None
+    ``end_matcher``: given the fused disparity and both views as :func:`prepare_images` blurred
+    them, the thread's ends matched in the images as (rows (E,) int, disparities (E,) px) or None
     (:func:`suture_reconstruction.ends.match_unanchored_ends`); those are fused again with the
     same matches, in place of the pairs at their samples and with the weight of the most
     confident match (``max_confidence``); with too few matches along the thread the mask pairs
@@ -321,7 +322,7 @@ def refine_disparity(
     values = np.concatenate([values, pairs.disparity[~own]])
     weight = np.concatenate([weight, pair_weight * pairs.weight[~own]])
     fused = initial if used == 0 else _fuse(len(points), rows, values, weight, smoothing, params)
-    end_matches = end_matcher(fused) if end_matcher is not None else None
+    end_matches = end_matcher(fused, (left, right)) if end_matcher is not None else None
     if end_matches is None:
         return fused, used
     end_rows, end_values = end_matches

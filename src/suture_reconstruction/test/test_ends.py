@@ -13,7 +13,7 @@ from suture_reconstruction import EndDisparityError, ReconstructionParams, recon
 from suture_reconstruction.curve import fit_curve
 from suture_reconstruction.ends import anchor_row_angle_deg, match_unanchored_ends, refuse_contradicted_ends
 from suture_reconstruction.pairing import DisparitySmoothing, Pairs, regularise_disparity
-from suture_reconstruction.photometric import refine_disparity
+from suture_reconstruction.photometric import prepare_images, refine_disparity
 from suture_reconstruction.sequences import resample
 
 DEPTH = 0.095
@@ -124,7 +124,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         len(tip_off), np.arange(len(tip_off)), tip_off, np.ones(len(tip_off)), DisparitySmoothing()
     )
 
-    matched = match_unanchored_ends(images, resampled, wrong, camera)
+    matched = match_unanchored_ends(prepare_images(*images), resampled, wrong, camera)
     assert matched is not None
     rows, values = matched
     assert rows.tolist() == list(range(5))  # the tip's 5 outermost samples; the far end is steep
@@ -138,7 +138,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
             len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
         )
         thread_images = with_thread(textured_pair(camera, 20), camera, anchored_or_not)
-        assert match_unanchored_ends(thread_images, samples, fit, camera) is None
+        assert match_unanchored_ends(prepare_images(*thread_images), samples, fit, camera) is None
 
     steep = np.arange(steep_from, len(tip_off))
     pairs = Pairs(  # the tip's pair 3 px off (the cut mask), every steep sample's pair right
@@ -159,7 +159,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         wrong,
         pairs,
         DisparitySmoothing(),
-        end_matcher=lambda fused: matched,
+        end_matcher=lambda fused, prepared: matched,
     )
     assert abs(refined.value[0] - true_disparity) < 0.5
     assert not abs(fused.value[0] - true_disparity) < 1.0  # without them: unsupported (NaN) or off
