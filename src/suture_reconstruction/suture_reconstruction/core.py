@@ -127,7 +127,8 @@ class ReconstructionParams:
     ``min_pairs`` (fewer pairs: NoStereoOverlapError). Shape: ``vertex_step`` (m
     between the vertices given to Algorithm 1, which fixes the unit of its index
     difference |i - t|), ``shape`` (:class:`ShapeGraphParams`: tau_L, its step,
-    Upsilon_3...). Curve: ``curve_smoothing`` (m), ``path_step`` (m). Grasp:
+    Upsilon_3...). Curve: ``curve_smoothing`` (m), ``arc_smoothing`` (m, the shorter smoothing of
+    the image-plane directions along which the arc length is measured), ``path_step`` (m). Grasp:
     ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
     ``refuse_unseen_grasp``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm``,
     ``max_arc_image_ratio`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
@@ -160,6 +161,15 @@ class ReconstructionParams:
         default=0.001,
         metadata=described(
             "smoothing length (m) of the 3D curve",
+            (0.0, 0.1),
+        ),
+    )
+    arc_smoothing: float = field(
+        default=0.0002,
+        metadata=described(
+            "smoothing length (m) of the image-plane directions of the curve along which the arc length "
+            "from the cut tip is measured (its depth keeps curve_smoothing): shorter than curve_smoothing, "
+            "which cuts the arc of a tight hook at the tip; about one pixel's span at the working distance",
             (0.0, 0.1),
         ),
     )
@@ -264,8 +274,8 @@ class ReconstructionParams:
             raise ValueError(
                 f"max_grasp_uncertainty_mm must be positive, got {self.max_grasp_uncertainty_mm}"
             )
-        if not (self.curve_smoothing >= 0 and self.grasp_arc_length >= 0):
-            raise ValueError("curve_smoothing and grasp_arc_length must not be negative")
+        if not (self.curve_smoothing >= 0 and self.arc_smoothing >= 0 and self.grasp_arc_length >= 0):
+            raise ValueError("curve_smoothing, arc_smoothing and grasp_arc_length must not be negative")
 
     def replace(self, **changes: object) -> ReconstructionParams:
         """A copy with ``changes`` applied; names of the fields of PairingParams, SelectionCosts,
@@ -479,7 +489,7 @@ def reconstruct(
     timer.lap("triangulation")
     vertices, shape = _shape(thread, params)
     timer.lap("optimisation")
-    curve = fit_curve(vertices[shape.indices], params.curve_smoothing)
+    curve = fit_curve(vertices[shape.indices], params.curve_smoothing, params.arc_smoothing)
     path = curve.resample(params.path_step)
     grasp = grasp_pose(curve, params.grasp_arc_length)
     refuse_late_start(tip_gap_mm(curve, left, camera), params.max_tip_gap_mm)

@@ -10,11 +10,15 @@ sampled densely, which gives the thread's length and points and tangents at any
 arc length from the cut tip.
 
 The smoother cuts a bend tighter than its smoothing length: a hairpin or hook at the
-cut end (bend radius 0.3-2 mm, its arms side by side) lost about 2 mm of arc under the
-1 mm smoothing length, and every point beyond it, the grasp point too, moved along the
-thread by as much. At such bends the arc length is taken from the vertex polyline
-instead (:func:`_bends_kept`); ``ArcLengthCurve.arc`` is that arc length along the
-thread, and the published path is spaced by the smoothed samples' own arc.
+cut end (bend radius 0.3-2 mm, its arms side by side) loses arc under the 1 mm smoothing
+length, and every point beyond it, the grasp point too, moves along the thread by as much.
+The arc length is therefore measured along a second version of the curve whose image-plane
+directions (x/z, y/z) are smoothed over a much shorter length, ``arc_smoothing`` (0.2 mm by
+default, about what one pixel spans across the viewing ray at the working distance), and whose
+depth keeps the 1 mm smoothing: the depth, from disparity, carries a ripple along the viewing
+rays that would make the thread too long, while a hook's arms lie side by side in the image.
+The 1 mm curve gives the thread's shape and tangents. ``ArcLengthCurve.arc`` is that arc
+length along the thread, and the published path is spaced by the smoothed samples' own arc.
 
 Units: metres at the interface; millimetres inside the fit (for conditioning).
 """
@@ -37,10 +41,6 @@ from suture_reconstruction.smoothing import whittaker
 
 _MM = 1000.0
 _DENSE_STEP_MM = 0.05
-#: Grid steps (of 0.25 mm) over which the arc the smoothing cut off at a bend is measured.
-_BEND_WINDOW = 5
-#: A bend whose smoothed radius is within this many smoothing lengths was cut by the smoother.
-_BEND_RADIUS = 2.0
 
 
 @dataclass(frozen=True)
@@ -74,15 +74,19 @@ class ArcLengthCurve:
         return np.stack([np.interp(s, own, self.samples[:, k]) for k in range(3)], axis=-1)
 
 
-def fit_curve(vertices: np.ndarray, smoothing: float, step: float = 2.5e-4) -> ArcLengthCurve:
+def fit_curve(
+    vertices: np.ndarray, smoothing: float, arc_smoothing: float = 2e-4, step: float = 2.5e-4
+) -> ArcLengthCurve:
     """Smooth arc-length curve through (n, 3) ordered vertices (m); smoothing length ``smoothing`` (m).
 
     The vertices are resampled every ``step`` m of chord length, smoothed with the
     Whittaker smoother (lam = (smoothing / step)^4, a discrete cubic smoothing
     spline), interpolated by a C2 cubic spline (``scipy.interpolate.make_interp_spline``)
-    and sampled every 0.05 mm; the samples' ``arc`` is their own arc length, with the arc
-    that the smoothing cut off at tight bends kept (:func:`_bends_kept`). ``smoothing`` = 0
-    keeps the (resampled) polyline.
+    and sampled every 0.05 mm. The samples' ``arc`` is measured along the same curve with its
+    image-plane directions (x/z, y/z) smoothed only over ``arc_smoothing`` (m; at most
+    ``smoothing``), which keeps the arc of bends tighter than ``smoothing``; the depth z keeps
+    the full smoothing. ``vertices`` are in a camera's frame (z > 0 along its optical axis).
+    ``smoothing`` = 0 keeps the (resampled) polyline.
     """
     mm = np.asarray(vertices, dtype=np.float64) * _MM
     seg = np.linalg.norm(np.diff(mm, axis=0), axis=1)
@@ -92,52 +96,26 @@ def fit_curve(vertices: np.ndarray, smoothing: float, step: float = 2.5e-4) -> A
     step_mm = step * _MM
     count = max(2, int(np.ceil(chord[-1] / step_mm)) + 1)
     s = np.linspace(0.0, chord[-1], count)
-    points = np.column_stack([np.interp(s, chord, mm[:, k]) for k in range(3)])
-    if smoothing > 0 and count >= 5:
-        points = whittaker(points, np.ones(count), (smoothing * _MM / (s[1] - s[0])) ** 4)
-    if count >= 4:
-        dense_s = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / _DENSE_STEP_MM)) + 1))
-        dense = make_interp_spline(s, points, k=3)(dense_s)
-    else:
-        dense = points
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))])
-    if smoothing > 0 and count >= 5:
-        arc = _bends_kept(arc, dense_s, s, points, smoothing * _MM)
+    resampled = np.column_stack([np.interp(s, chord, mm[:, k]) for k in range(3)])
+    dense_s = np.linspace(0.0, s[-1], max(2, int(np.ceil(s[-1] / _DENSE_STEP_MM)) + 1))
+
+    def smoothed(points: np.ndarray, length_mm: float) -> np.ndarray:
+        if length_mm > 0 and count >= 5:
+            return whittaker(points, np.ones(count), (length_mm / (s[1] - s[0])) ** 4)
+        return points
+
+    def densified(points: np.ndarray) -> np.ndarray:
+        return make_interp_spline(s, points, k=3)(dense_s) if count >= 4 else points
+
+    shaped = smoothed(resampled, smoothing * _MM)
+    dense = densified(shaped)
+    # The depth's noise (along the viewing rays) keeps the long smoothing; the image-plane
+    # directions, measured to a fraction of a pixel, keep their tight bends.
+    depth = shaped[:, 2:]
+    rays = smoothed(resampled[:, :2] / resampled[:, 2:], min(arc_smoothing, smoothing) * _MM)
+    measured = densified(np.column_stack([rays * depth, depth]))
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(measured, axis=0), axis=1))])
     return ArcLengthCurve(dense / _MM, arc / _MM)
-
-
-def _bends_kept(
-    arc: np.ndarray, chord: np.ndarray, grid: np.ndarray, smoothed: np.ndarray, smoothing: float
-) -> np.ndarray:
-    """The smoothed curve's ``arc`` (S,) mm with the arc that the smoothing cut off at tight
-    bends put back. ``chord`` (S,): the samples' arc along the vertex polyline; ``grid`` (K,)
-    mm: its resampling grid, ``smoothed`` (K, 3) mm the smoothed points there; ``smoothing``
-    the smoothing length (mm).
-
-    Over windows of :data:`_BEND_WINDOW` grid steps the polyline's arc exceeds the smoothed
-    one by a ratio that its noise keeps about the same along the thread (the median ratio),
-    and that a bend tighter than the smoothing length raises locally. Where the smoothed
-    curve still bends with a radius within :data:`_BEND_RADIUS` smoothing lengths (over about
-    1 mm either side), each step's smoothed arc grows by the local ratio over the median (it
-    never shrinks); elsewhere it stays: the staircase of a sequence traced on a mask raises
-    the ratio along straight stretches too, and there it is noise."""
-    smooth = np.interp(grid, chord, arc)
-    own, polyline = np.diff(smooth), np.diff(grid)
-    window = np.ones(_BEND_WINDOW)
-    ratio = np.convolve(polyline, window, "same") / np.maximum(np.convolve(own, window, "same"), 1e-12)
-    gain = np.maximum(1.0, ratio / max(float(np.median(ratio)), 1e-12))
-    chords = np.diff(smoothed, axis=0)
-    half = _BEND_WINDOW // 2 + 1
-    before, after = chords[: len(chords) - half], chords[half:]
-    cos = np.einsum("ij,ij->i", before, after) / np.maximum(
-        np.linalg.norm(before, axis=1) * np.linalg.norm(after, axis=1), 1e-12
-    )
-    turn = np.zeros(len(chords))
-    turn[half // 2 : half // 2 + len(cos)] = np.arccos(np.clip(cos, -1.0, 1.0))
-    radius = (half * np.diff(grid).mean()) / np.maximum(turn, 1e-12)
-    gain = np.where(radius < _BEND_RADIUS * smoothing, gain, 1.0)
-    kept = np.concatenate([[0.0], np.cumsum(own * gain)])
-    return np.interp(chord, grid, kept)
 
 
 @dataclass(frozen=True)

@@ -124,6 +124,7 @@ _CORE_PARAMETERS = (
     (PairingParams, "max_depth"),
     (ReconstructionParams, "min_points"),
     (ReconstructionParams, "curve_smoothing"),
+    (ReconstructionParams, "arc_smoothing"),
     (ReconstructionParams, "path_step"),
 )
 """The fields of the core's parameters the node exposes, each under its own name."""

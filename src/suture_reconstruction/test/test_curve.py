@@ -41,20 +41,38 @@ def test_thread_shorter_than_the_reserve_and_degenerate_frame():
         grasp_pose(fit_curve(along_ray, 0.001), 0.05)
 
 
-def test_a_hairpin_tighter_than_the_smoothing_keeps_its_arc_length():
-    # A cut end bent into a hairpin of radius 0.4 mm (arms 0.8 mm apart) after a 5 mm tip arm:
-    # the 1 mm smoothing cuts the bend, and the points beyond it must not move along the thread.
-    radius, step = 0.0004, 1e-5
-    arm = np.column_stack([np.arange(0.0, 0.005, step), np.zeros(500)])
+def hairpin(radius: float, tip_arm: float, step: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+    """A cut end bent into a hairpin of ``radius`` (arms 2 * radius apart) after a ``tip_arm``
+    (m), then 45 mm back past the tip, at 0.11 m depth: (N, 3) points every 10 um and their arc."""
+    arm = np.column_stack([np.arange(0.0, tip_arm, step), np.zeros(round(tip_arm / step))])
     angle = np.arange(0.0, np.pi, step / radius)
-    bend = np.column_stack([0.005 + radius * np.sin(angle), radius - radius * np.cos(angle)])
-    back = np.column_stack([np.arange(0.005, -0.045, -step), np.full(5000, 2 * radius)])
+    bend = np.column_stack([tip_arm + radius * np.sin(angle), radius - radius * np.cos(angle)])
+    back_x = np.arange(tip_arm, -0.045, -step)
+    back = np.column_stack([back_x, np.full(len(back_x), 2 * radius)])
     planar = np.vstack([arm, bend, back])
-    thread = np.column_stack([planar, np.full(len(planar), 0.1)])
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(thread, axis=0), axis=1))])
+    thread = np.column_stack([planar, np.full(len(planar), 0.11)])
+    return thread, np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(thread, axis=0), axis=1))])
+
+
+@pytest.mark.parametrize(("radius", "tip_arm"), [(0.0001, 0.002), (0.0002, 0.002), (0.0004, 0.005)])
+def test_a_hairpin_tighter_than_the_smoothing_keeps_its_arc_length(radius, tip_arm):
+    # The 1 mm smoothing cuts the bend (1.0-1.4 mm of arc at radii 0.1-0.2 mm after a 2 mm
+    # arm); the points beyond it must not move along the thread.
+    thread, arc = hairpin(radius, tip_arm)
     curve = fit_curve(thread[::10], smoothing=0.001)
     assert curve.length == pytest.approx(arc[-1], abs=3e-4)
     for at in (0.02, 0.04):
         true = thread[np.searchsorted(arc, at)]
         assert np.linalg.norm(curve.at(at) - true) < 3e-4
         assert np.linalg.norm(grasp_pose(curve, at).position - true) < 3e-4
+
+
+def test_a_ripple_in_depth_does_not_lengthen_the_thread():
+    # Disparity noise is a ripple along the viewing rays (here 0.2 mm over 2 mm of thread):
+    # the arc is measured with the depth smoothed as the curve, not as the tight bends.
+    x = np.arange(0.0, 0.08, 1e-4)
+    rippled = np.column_stack([x, np.zeros_like(x), 0.11 + 2e-4 * np.sin(2 * np.pi * x / 0.002)])
+    curve = fit_curve(rippled, smoothing=0.001)
+    assert curve.length == pytest.approx(0.08, rel=2e-3)
+    fully_smoothed = fit_curve(rippled, smoothing=0.001, arc_smoothing=0.001)
+    assert fully_smoothed.length == pytest.approx(curve.length, rel=1e-3)
