@@ -40,5 +40,6 @@ class NoFreeEndError(OrderingError):
 
 
 class UnexplainedTipError(OrderingError):
-    """Thread near the cut tip lies off the ordered sequence (a hook or loop the search skipped):
-    the grasp point's arc from the tip would be too short."""
+    """Thread near the cut tip, or in line beyond it, lies off the ordered sequence (a hook or loop
+    the search skipped, or one whose arms the mask lost): the grasp point's arc from the tip would
+    be too short."""

@@ -42,8 +42,9 @@ when it arrives (:class:`suture_common.camera.CameraInfoCache` keeps it). A malf
 (wrong encoding, size mismatch, unusable camera_info, empty mask, tip hint outside the image
 or NaN, a thread without free end...) drops that frame with one throttled warning naming the
 problem; the node keeps serving. So does an ordering it cannot trust: mask pixels near either
-view's cut tip that the sequence does not explain (a hook or loop the search skipped,
-``UnexplainedTipError``, parameters ``tip_unexplained_radius_px`` and ``tip_unexplained_max_px``).
+view's cut tip, or in line with the thread beyond it, that the sequence does not explain (a hook or
+loop the search skipped, or one whose arms the mask lost, ``UnexplainedTipError``, parameters
+``tip_unexplained_radius_px`` and ``tip_unexplained_max_px``).
 """
 
 from __future__ import annotations

@@ -218,8 +218,9 @@ class OrderingParams:
     tip_unexplained_radius_px: float = field(
         default=16.0,
         metadata=described(
-            "after ordering, the mask (low mask where given) within this radius of each view's cut tip "
-            "must lie on the sequence (suture_ordering.tip_check); 0: no check (px)",
+            "after ordering, the mask (low mask where given) within this radius of each view's cut tip, "
+            "and in line with the thread beyond the tip out to twice it, must lie on the sequence "
+            "(suture_ordering.tip_check); 0: no check (px)",
             (0.0, 640.0),
         ),
     )
@@ -227,8 +228,9 @@ class OrderingParams:
         default=5.0,
         metadata=described(
             "the ordering refuses (UnexplainedTipError) when more than this many mask pixels within "
-            "tip_unexplained_radius_px of a cut tip lie off the sequence: a hook or loop the search "
-            "skipped (pixels at 640 px width, scaled with the width squared)",
+            "tip_unexplained_radius_px of a cut tip, or in line beyond it, lie off the sequence: a hook or "
+            "loop the search skipped, or one whose arms the mask lost (pixels at 640 px width, scaled "
+            "with the width squared)",
             (0.0, 409600.0),
         ),
     )

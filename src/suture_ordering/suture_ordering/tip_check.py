@@ -27,6 +27,14 @@ loop or hook the search skipped is not: the sequence does not come back to it, a
 beside the sequence that it passes once is not either.
 :func:`check_tip_explained` raises :class:`~suture_ordering.errors.UnexplainedTipError`
 when either view has more than ``max_pixels``.
+
+The segmenter can lose a hairpin's merged arms, the stroke twice the thread's width between the
+cut tip and the hairpin's loop, and keep the loop: the mask then ends at the tip, and the loop lies
+apart, farther on in line with the thread than the check's radius. :func:`thread_beyond_tip_pixels`
+counts the mask's pixels off the sequence from the radius out to :data:`BEYOND_REACH` radii, within
+:data:`BEYOND_HALF_ANGLE_DEG` of the way the thread leaves the tip; :func:`check_tip_explained`
+refuses more than ``max_pixels`` of them too. A thread passing to the side of the tip at that
+distance does not count; one crossing the line beyond the tip does, the safe side.
 """
 
 from __future__ import annotations
@@ -41,6 +49,11 @@ from suture_ordering.errors import UnexplainedTipError
 
 #: A mask pixel within this distance (px) of the sequence's polyline is always explained by it.
 EXPLAINED_PX = 2.5
+#: Beyond the tip, pixels off the sequence count within this angle (deg) of the thread's way out
+#: of the tip, from the check's radius out to :data:`BEYOND_REACH` radii.
+BEYOND_HALF_ANGLE_DEG = 25.0
+#: How far beyond the tip (in check radii) a piece of the thread in line with the tip counts.
+BEYOND_REACH = 2.0
 #: Holes are filled, and the sequence's passes found, this much (px) beyond the radius: a hole or
 #: a walk's bend just past it counts as in the search's whole mask.
 COVER_MARGIN = 8
@@ -195,6 +208,40 @@ def _explained_distance(window: np.ndarray, local: np.ndarray) -> float:
     return max(EXPLAINED_PX, float(np.median(depth)) + 1.0)
 
 
+def thread_beyond_tip_pixels(mask: np.ndarray, sequence: np.ndarray, radius: float) -> int:
+    """Pixels of ``mask`` (H, W; nonzero: thread) in line with the thread beyond its cut tip: from
+    ``radius`` to :data:`BEYOND_REACH` times ``radius`` px from ``sequence[0]`` ((N, 2) float (u, v)
+    from the tip), within :data:`BEYOND_HALF_ANGLE_DEG` of the way the sequence leaves the tip
+    backwards (from its point ``radius`` / 2 px of arc in, through the tip), and farther from the
+    sequence's polyline than the thread's own pixels lie."""
+    sequence = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+    if len(sequence) < 2 or radius <= 0:
+        return 0
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(sequence, axis=0).T))])
+    tip = sequence[0]
+    outward = tip - sequence[min(int(np.searchsorted(arc, radius / 2)), len(sequence) - 1)]
+    length = float(np.hypot(*outward))
+    if length == 0:
+        return 0
+    reach = BEYOND_REACH * radius
+    window, u0, v0 = _window(mask, tip, reach)
+    if window.size == 0:
+        return 0
+    rows, cols = np.mgrid[v0 : v0 + window.shape[0], u0 : u0 + window.shape[1]]
+    offset_u, offset_v = cols - tip[0], rows - tip[1]
+    distance = np.hypot(offset_u, offset_v)
+    along = (offset_u * outward[0] + offset_v * outward[1]) / length
+    in_line = along >= distance * math.cos(math.radians(BEYOND_HALF_ANGLE_DEG))
+    candidates = (window > 0) & in_line & (distance > radius) & (distance <= reach)
+    if not candidates.any():
+        return 0
+    local = np.rint(sequence - [u0, v0]).astype(np.int32)
+    drawn = np.zeros_like(window)
+    cv2.polylines(drawn, [local.reshape(-1, 1, 2)], False, 1, 1)
+    far = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return int(np.count_nonzero(candidates & (far > _explained_distance(window, local))))
+
+
 def check_tip_explained(
     masks: tuple[np.ndarray, np.ndarray],
     sequences: tuple[np.ndarray, np.ndarray],
@@ -204,7 +251,8 @@ def check_tip_explained(
     min_eye_width: int = 0,
 ) -> None:
     """Raise :class:`UnexplainedTipError` when, in either view, more than ``max_pixels`` of the
-    mask near the tip (:func:`unexplained_tip_pixels` within ``radius`` px) lie off the sequence.
+    mask near the tip (:func:`unexplained_tip_pixels` within ``radius`` px), or in line beyond it
+    (:func:`thread_beyond_tip_pixels`), lie off the sequence.
     ``masks``: (left, right) (H, W); ``sequences``: (left, right) (N, 2) from the cut tip;
     ``max_hole_area``: px², the largest hole the ordering's mask cleaning fills; ``min_eye_width``:
     px, the square of background that keeps such a hole open there."""
@@ -220,5 +268,15 @@ def check_tip_explained(
                 f"sequence (more than tip_unexplained_max_px, {max_pixels:.0f} px at this image size): "
                 "the search skipped a hook or loop at the tip, and the grasp point would lie that arc too "
                 "far along the thread; check the masks near the tip",
+                view,
+            )
+        beyond = thread_beyond_tip_pixels(mask, sequence, radius)
+        if beyond > max_pixels:
+            raise UnexplainedTipError(
+                f"{beyond} px of thread lie beyond the cut tip in line with it, {radius:.0f}-"
+                f"{BEYOND_REACH * radius:.0f} px away and off the ordered sequence (more than "
+                f"tip_unexplained_max_px, {max_pixels:.0f} px at this image size): the mask lost the "
+                "thread between the tip and the rest of a hook, and the grasp point would lie that arc "
+                "too far along the thread; check the masks near the tip",
                 view,
             )

@@ -11,7 +11,7 @@ import pytest
 
 from suture_common.camera import StereoCamera
 from suture_ordering import OrderingParams, UnexplainedTipError, order_stereo
-from suture_ordering.tip_check import check_tip_explained, unexplained_tip_pixels
+from suture_ordering.tip_check import check_tip_explained, thread_beyond_tip_pixels, unexplained_tip_pixels
 
 W, H = 640, 480
 
@@ -51,6 +51,27 @@ def test_a_loop_at_the_tip_that_the_sequence_skips_is_not_explained():
     # Farther from the tip than the radius, the same fragment does not count.
     far = _loop_fragment((300.0, 250.0), 6.0, 0.5 * np.pi, 1.5 * np.pi)
     assert unexplained_tip_pixels(_draw([thread, far], width=1), thread, 16.0) == 0
+
+
+def test_a_hooks_loop_cut_off_in_line_beyond_the_tip_is_thread_beyond_it():
+    # The mask lost a hairpin's merged arms: the tip is the mask's end, and the hairpin's loop
+    # lies apart, 20-30 px on in line with the thread, beyond the 16 px of the check near the tip.
+    thread = _line((150, 120), (520, 330))
+    outward = (thread[0] - thread[10]) / np.hypot(*(thread[0] - thread[10]))
+    centre = thread[0] + 25.0 * outward
+    loop = _loop_fragment(tuple(centre), 5.0, 0.0, 2.0 * np.pi)
+    mask = _draw([thread, loop], width=2)
+    assert unexplained_tip_pixels(mask, thread, 16.0) == 0
+    assert thread_beyond_tip_pixels(mask, thread, 16.0) > 5
+    with pytest.raises(UnexplainedTipError, match="left view: .* px of thread lie beyond the cut tip"):
+        check_tip_explained((mask, _draw([thread], width=2)), (thread, thread), 16.0, 5.0)
+    # The same loop to the side of the tip, or 40 px on, is not in line with it within reach.
+    aside = thread[0] + 25.0 * np.array([-outward[1], outward[0]])
+    farther = thread[0] + 40.0 * outward
+    for elsewhere in (aside, farther):
+        other = _draw([thread, _loop_fragment(tuple(elsewhere), 5.0, 0.0, 2.0 * np.pi)], width=2)
+        assert thread_beyond_tip_pixels(other, thread, 16.0) == 0
+    assert thread_beyond_tip_pixels(_draw([thread], width=2), thread, 16.0) == 0
 
 
 def _shifted(mask: np.ndarray, disparity: int) -> np.ndarray:
