@@ -107,15 +107,24 @@ def _off_sequence(mask: np.ndarray, sequence: np.ndarray, radius: float) -> np.n
     near = np.hypot(cols - tip[0], rows - tip[1]) <= radius
     if not (window & near).any():
         return none
-    local = np.rint(sequence - [u0, v0]).astype(np.int32)
-    drawn = np.zeros_like(window)
-    cv2.polylines(drawn, [local.reshape(-1, 1, 2)], False, 1, 1)
-    if not drawn.any():
+    far = _far_from_sequence(window, sequence - [u0, v0])
+    if far is None:
         return none
-    explained = _explained_distance(window, local)
-    far = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > explained
     rows, cols = np.nonzero((window > 0) & near & far)
     return np.column_stack((cols + u0, rows + v0)).astype(np.int64)
+
+
+def _far_from_sequence(window: np.ndarray, local: np.ndarray) -> np.ndarray | None:
+    """(h, w) bool: the pixels of ``window`` (uint8 0/1) farther from the sequence's polyline
+    (``local``: (N, 2) float (u, v) in the window's coordinates) than the thread's own pixels lie
+    (:func:`_explained_distance`); None when the polyline misses the window."""
+    cells = np.rint(local).astype(np.int32)
+    drawn = np.zeros_like(window)
+    cv2.polylines(drawn, [cells.reshape(-1, 1, 2)], False, 1, 1)
+    if not drawn.any():
+        return None
+    distance = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return distance > _explained_distance(window, cells)
 
 
 def _window(mask: np.ndarray, tip: np.ndarray, radius: float) -> tuple[np.ndarray, int, int]:
@@ -235,11 +244,8 @@ def thread_beyond_tip_pixels(mask: np.ndarray, sequence: np.ndarray, radius: flo
     candidates = (window > 0) & in_line & (distance > radius) & (distance <= reach)
     if not candidates.any():
         return 0
-    local = np.rint(sequence - [u0, v0]).astype(np.int32)
-    drawn = np.zeros_like(window)
-    cv2.polylines(drawn, [local.reshape(-1, 1, 2)], False, 1, 1)
-    far = cv2.distanceTransform((1 - drawn).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return int(np.count_nonzero(candidates & (far > _explained_distance(window, local))))
+    far = _far_from_sequence(window, sequence - [u0, v0])
+    return 0 if far is None else int(np.count_nonzero(candidates & far))
 
 
 def check_tip_explained(
