@@ -21,11 +21,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_ordering.cleaning import CleanMask, as_binary_mask, clean_binary
 from suture_ordering.errors import InvalidInputError, NoFreeEndError, OrderingError, TipNotOnThreadError
-from suture_ordering.hooks import HookStart, hook_after_search, hook_start, on_mask, stereo_tip
+from suture_ordering.hooks import HOOK_WINDOW, HookStart, hook_after_search, hook_start, on_mask, stereo_tip
 from suture_ordering.not_seen import flagged_sequence, seen_in_low_mask
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
@@ -39,6 +40,11 @@ from suture_ordering.tip import (
     tip_from_hint,
 )
 from suture_ordering.tip_check import check_tip_explained
+
+#: Arc (px at 640 px width) by which the low masks' sequences may fall short of the masks' near
+#: the tip, in the view that does not gain, and still be taken (:func:`_holds_more_of_the_tip`);
+#: also how near the low masks' sequence must pass to where the masks' leaves the hook window.
+TIP_ARC_SLACK_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -278,10 +284,12 @@ def order_stereo(
         The views' *low masks* (the masks plus the fainter pixels connected to them,
         ``/suture/{left,right}/mask_low``). Both pairs are ordered and the low masks' sequences
         are taken when they reach farther: one view longer by more than ``low_mask_min_gain``
-        and neither shorter by more than ``low_mask_max_loss`` (relative); or when the masks
-        themselves give no sequence. A faint stretch where the masks break then no longer ends
-        the thread, while where both agree the masks' narrower centrelines are kept; a stretch
-        that the masks' search bridged and that the low mask covers is published as seen.
+        and neither shorter by more than ``low_mask_max_loss`` (relative); when they hold more
+        of the thread near the cut tip (``low_mask_tip_gain_px``, :func:`_holds_more_of_the_tip`);
+        or when the masks themselves give no sequence. A faint stretch where the masks break
+        then no longer ends the thread, while where both agree the masks' narrower centrelines
+        are kept; a stretch that the masks' search bridged and that the low mask covers is
+        published as seen.
 
     Returns
     -------
@@ -375,9 +383,57 @@ def _masks_or_low_masks(
     gains = [_length(low.left) / _length(ordering.left), _length(low.right) / _length(ordering.right)]
     # Seeing the cut end beats bridging it from the hint.
     sees_tip = _tip_gap(low.left_result) < _tip_gap(ordering.left_result)
-    if sees_tip or (max(gains) > 1 + params.low_mask_min_gain and min(gains) >= 1 - params.low_mask_max_loss):
+    keeps_length = min(gains) >= 1 - params.low_mask_max_loss
+    reaches_farther = max(gains) > 1 + params.low_mask_min_gain
+    scaled = _scaled_params(params, np.asarray(left_mask).shape[1])
+    holds_tip = _holds_more_of_the_tip(ordering, low, scaled, params)
+    if sees_tip or (keeps_length and (reaches_farther or holds_tip)):
         return dataclasses.replace(low, low_masks_used=True)
     return _gaps_read_on(ordering, low_masks)
+
+
+def _holds_more_of_the_tip(
+    ordering: StereoOrdering, low: StereoOrdering, scaled: ScaledParams, params: OrderingParams
+) -> bool:
+    """Whether the low masks' sequences hold more of the thread near the cut tip than the masks':
+    between the tip and where the masks' sequence leaves the hook window, one view's low
+    sequence runs more than ``low_mask_tip_gain_px`` along thread that the masks' sequence does
+    not pass (a hairpin's bend or a loop that the mask lost and the low mask kept; not a second
+    lap of the same loop), and neither view's is shorter there by more than ``TIP_ARC_SLACK_PX``."""
+    if params.low_mask_tip_gain_px <= 0:
+        return False
+    window, slack = HOOK_WINDOW * scaled.roi_radius, TIP_ARC_SLACK_PX * scaled.scale
+    arcs = [
+        _tip_arcs(ordering.left, low.left, window, slack),
+        _tip_arcs(ordering.right, low.right, window, slack),
+    ]
+    if arcs[0] is None or arcs[1] is None:
+        return False
+    longer, unexplained = zip(*arcs, strict=True)
+    return min(longer) >= -slack and max(unexplained) > params.low_mask_tip_gain_px * scaled.scale
+
+
+def _tip_arcs(
+    sequence: np.ndarray, other: np.ndarray, window: float, slack: float
+) -> tuple[float, float] | None:
+    """How ``other`` (M, 2) differs from ``sequence`` (N, 2), both from the cut tip, up to the point
+    where ``sequence`` first lies farther than ``window`` px from its tip: the arc (px) by which
+    ``other`` is longer to reach that point, and the arc of ``other`` there that lies farther
+    than ``slack`` px from ``sequence``. None where ``sequence`` stays within the window or
+    ``other`` does not pass within ``slack`` of that point."""
+    sequence, other = np.asarray(sequence)[:, :2], np.asarray(other)[:, :2]
+    outside = np.flatnonzero(np.hypot(*(sequence - sequence[0]).T) > window)
+    if len(outside) == 0 or len(other) < 2:
+        return None
+    leaving = sequence[outside[0]]
+    distance = np.hypot(*(other - leaving).T)
+    reach = int(np.argmin(distance))
+    if distance[reach] > slack:
+        return None
+    other_arc = arc_length(other[: reach + 1])
+    away, _ = cKDTree(sequence[: outside[0] + 1]).query(other[: reach + 1])
+    unexplained = float(np.gradient(other_arc)[away > slack].sum()) if reach > 0 else 0.0
+    return float(other_arc[-1] - arc_length(sequence[: outside[0] + 1])[-1]), unexplained
 
 
 def _gaps_read_on(ordering: StereoOrdering, low_masks: tuple[np.ndarray, np.ndarray]) -> StereoOrdering:

@@ -297,6 +297,15 @@ class OrderingParams:
         default=0.02,
         metadata=described("... and neither view's is shorter by more than this share (below 1)", (0.0, 1.0)),
     )
+    low_mask_tip_gain_px: float = field(
+        default=6.0,
+        metadata=described(
+            "... or when, between the cut tip and where the masks' sequence leaves the hook window, "
+            "one view's runs more than this many px (at 640 px width) along thread the masks' does "
+            "not pass (a hairpin's bend the mask lost) and neither view's is 2 px shorter there; 0: off",
+            (0.0, 640.0),
+        ),
+    )
     max_steps: int = field(
         default=2000,
         metadata=described(
