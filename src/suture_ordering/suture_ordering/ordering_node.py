@@ -17,7 +17,8 @@ first point seen.
 
 With ``use_low_masks`` (default true) it also subscribes ``/suture/{left,right}/mask_low``
 (segmentation_node's low masks, the same format) and gives the pair of the masks' stamp to
-:func:`order_stereo`, which takes their sequences where they reach farther. segmentation_node
+:func:`order_stereo`, which takes their sequences where they reach farther or hold more of the
+cut end (a hairpin's bend the mask lost: ``low_mask_tip_gain_px``). segmentation_node
 publishes the low masks just before the masks; once low masks have been seen, a mask pair whose
 low masks have not arrived waits for them up to ``low_mask_wait`` seconds, or until the next
 mask pair is complete, then is ordered without them (``without_low_masks`` counts those). Until

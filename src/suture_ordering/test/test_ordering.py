@@ -29,6 +29,7 @@ from suture_ordering import (
     order_stereo,
 )
 from suture_ordering.cleaning import fill_holes_remove_specks
+from suture_ordering.core import _tip_arcs
 from suture_ordering.stereo_fill import splice_skipped_stretch
 from suture_ordering.tip import right_tip_across_gap, tip_across_gap, tip_from_hint
 
@@ -603,6 +604,26 @@ def test_low_masks_that_keep_a_hairpins_bend_the_masks_lost_give_the_sequences()
     check_follows(result.left, truth, tolerance=3.0)
     check_follows(result.right, truth - [30, 0], tolerance=3.0)
     assert result.left[:, 0].min() < 245 and result.right[:, 0].min() < 215  # round the bend
+
+
+def test_tip_arcs_count_thread_off_the_masks_sequence_not_a_second_lap_over_it():
+    sequence = line((0, 0), (100, 0))  # leaves the 48 px window at u = 48
+    lap = np.vstack([line((0, 0), (30, 0)), line((30, 0), (10, 0)), line((10, 0), (100, 0))])
+    longer, unexplained = _tip_arcs(sequence, lap, 48.0, 2.0)
+    assert longer == pytest.approx(40.0, abs=1.0) and unexplained == 0.0  # the same pixels again
+    bend = np.vstack(
+        [
+            line((0, 0), (20, 0)),
+            line((20, 0), (20, 10)),
+            line((20, 10), (24, 10)),
+            line((24, 10), (24, 0)),
+            line((24, 0), (100, 0)),
+        ]
+    )
+    longer, unexplained = _tip_arcs(sequence, bend, 48.0, 2.0)
+    assert longer == pytest.approx(20.0, abs=1.0) and 16.0 < unexplained < 22.0  # the detour off it
+    assert _tip_arcs(sequence, line((0, 5), (100, 5)), 48.0, 2.0) is None  # never passes u = 48, v = 0
+    assert _tip_arcs(line((0, 0), (40, 0)), sequence, 48.0, 2.0) is None  # stays in the window
 
 
 @pytest.mark.parametrize("width", [2, 3])
