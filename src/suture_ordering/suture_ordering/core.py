@@ -385,9 +385,10 @@ def _masks_or_low_masks(
     sees_tip = _tip_gap(low.left_result) < _tip_gap(ordering.left_result)
     keeps_length = min(gains) >= 1 - params.low_mask_max_loss
     reaches_farther = max(gains) > 1 + params.low_mask_min_gain
+    if sees_tip or (keeps_length and reaches_farther):
+        return dataclasses.replace(low, low_masks_used=True)
     scaled = _scaled_params(params, np.asarray(left_mask).shape[1])
-    holds_tip = _holds_more_of_the_tip(ordering, low, scaled, params)
-    if sees_tip or (keeps_length and (reaches_farther or holds_tip)):
+    if keeps_length and _holds_more_of_the_tip(ordering, low, scaled, params):
         return dataclasses.replace(low, low_masks_used=True)
     return _gaps_read_on(ordering, low_masks)
 
