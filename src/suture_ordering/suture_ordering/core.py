@@ -41,9 +41,10 @@ from suture_ordering.tip import (
 )
 from suture_ordering.tip_check import check_tip_explained
 
-#: Arc (px at 640 px width) by which the low masks' sequences may fall short of the masks' near
-#: the tip, in the view that does not gain, and still be taken (:func:`_holds_more_of_the_tip`);
-#: also how near the low masks' sequence must pass to where the masks' leaves the hook window.
+#: Arc (px at 640 px width) by which either view's low-mask sequence may fall short of the masks'
+#: near the tip and still be taken (:func:`_holds_more_of_the_tip`); also how near it must pass
+#: to where the masks' sequence leaves the hook window, and how far from that sequence its
+#: thread counts as thread the masks' sequence does not pass.
 TIP_ARC_SLACK_PX = 2.0
 
 
@@ -387,8 +388,7 @@ def _masks_or_low_masks(
     reaches_farther = max(gains) > 1 + params.low_mask_min_gain
     if sees_tip or (keeps_length and reaches_farther):
         return dataclasses.replace(low, low_masks_used=True)
-    scaled = _scaled_params(params, np.asarray(left_mask).shape[1])
-    if keeps_length and _holds_more_of_the_tip(ordering, low, scaled, params):
+    if keeps_length and _holds_more_of_the_tip(ordering, low, _scaled_params(params, camera.width), params):
         return dataclasses.replace(low, low_masks_used=True)
     return _gaps_read_on(ordering, low_masks)
 
@@ -434,7 +434,7 @@ def _tip_arcs(
     other_arc = arc_length(other[: reach + 1])
     away, _ = cKDTree(sequence[: outside[0] + 1]).query(other[: reach + 1])
     unexplained = float(np.gradient(other_arc)[away > slack].sum()) if reach > 0 else 0.0
-    return float(other_arc[-1] - arc_length(sequence[: outside[0] + 1])[-1]), unexplained
+    return float(other_arc[-1]) - _length(sequence[: outside[0] + 1]), unexplained
 
 
 def _gaps_read_on(ordering: StereoOrdering, low_masks: tuple[np.ndarray, np.ndarray]) -> StereoOrdering:
