@@ -31,6 +31,7 @@ from suture_ordering.not_seen import flagged_sequence, seen_in_low_mask
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
+from suture_ordering.strand_switch import strand_switch_index
 from suture_ordering.tip import (
     automatic_tip,
     check_hint,
@@ -101,7 +102,9 @@ class StereoOrdering:
     across the flagged stretches from the seen thread on either side.
     ``filled``: points of ``left`` and ``right`` found by following the other view, across a gap
     in this view's mask or round a loop this view's search cut across
-    (:mod:`suture_ordering.stereo_fill`); 0 where none was needed. ``low_masks_used``: the
+    (:mod:`suture_ordering.stereo_fill`); 0 where none was needed. ``cut``: points cut from the
+    end of ``left`` and ``right`` where the sequence turned off its thread onto a crossing strand
+    (:mod:`suture_ordering.strand_switch`); 0 where it did not. ``low_masks_used``: the
     sequences are those of the low masks (:func:`order_stereo`).
     """
 
@@ -112,6 +115,7 @@ class StereoOrdering:
     left_sequence: np.ndarray
     right_sequence: np.ndarray
     filled: tuple[int, int] = (0, 0)
+    cut: tuple[int, int] = (0, 0)
     low_masks_used: bool = False
 
 
@@ -585,6 +589,19 @@ def _order_pair(
                 sequences[index], prepared.clean.mask, other, sign, (d_min, d_max)
             )
             filled[index] += spliced
+    cut = [0, 0]
+    for index, (_, prepared, _, _) in enumerate(views):
+        switch = strand_switch_index(
+            prepared.clean.mask,
+            sequences[index],
+            prepared.scaled.roi_radius,
+            params.strand_switch_turn,
+            HOOK_WINDOW * prepared.scaled.roi_radius,
+            prepared.scaled.scale,
+        )
+        if switch is not None:
+            cut[index] = len(sequences[index]) - switch - 1
+            sequences[index] = sequences[index][: switch + 1]
     return StereoOrdering(
         left=sequences[0],
         right=sequences[1],
@@ -593,4 +610,5 @@ def _order_pair(
         left_sequence=flagged_sequence(sequences[0], left.points, left.bridged, left_prepared.clean.mask),
         right_sequence=flagged_sequence(sequences[1], right.points, right.bridged, right_prepared.clean.mask),
         filled=(filled[0], filled[1]),
+        cut=(cut[0], cut[1]),
     )

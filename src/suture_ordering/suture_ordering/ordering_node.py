@@ -27,6 +27,11 @@ alone. That timing is :class:`suture_ordering.schedule.MaskPairSchedule`; this m
 adapts messages to it. Low masks that do not fit their masks (encoding, size) are left out with
 a throttled warning.
 
+A sequence that turns at a crossing onto the other strand, where mask straight on shows its own
+thread going on beyond a stretch the mask lost, is published cut at the crossing
+(``strand_switch_turn``, :mod:`suture_ordering.strand_switch`): the 3D stage then refuses a
+thread too short to grasp instead of grasping the other thread.
+
 Parameters (read at start-up): :data:`PARAMETERS`, every field of
 :class:`suture_ordering.OrderingParams` under its own name (pixel lengths for a 640 px wide
 image, scaled with the mask width; ``reference_width_px`` 0 means "use the pixel values
@@ -177,6 +182,9 @@ class OrderingNode(Node):
         self._warnings = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)
         self.dropped: dict[str, int] = self._warnings.counts
         """Mask pairs dropped, by problem."""
+        self._notes = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)  # published, with a caveat
+        self.frames_cut = 0
+        """Mask pairs published with a sequence cut at a crossing (``StereoOrdering.cut``)."""
         self.frames_published = 0
         self._left_pub = self.create_publisher(PolygonStamped, LEFT_SEQUENCE, RELIABLE_QOS)
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
@@ -305,6 +313,13 @@ class OrderingNode(Node):
         except OrderingError as exc:
             self._warnings.warn(type(exc).__name__, f"dropped masks at {stamp_ns} ns: {exc}")
             return
+        if any(result.cut):
+            self.frames_cut += 1
+            self._notes.warn(
+                "strand_switch",
+                f"masks at {stamp_ns} ns: sequences cut at a crossing where they turned onto the other "
+                f"strand ({result.cut[0]} left, {result.cut[1]} right points; strand_switch_turn)",
+            )
         for publisher, points, header in (
             (self._left_pub, result.left_sequence, left.header),
             (self._right_pub, result.right_sequence, right.header),

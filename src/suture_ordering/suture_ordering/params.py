@@ -183,6 +183,16 @@ class OrderingParams:
             (0.0, math.pi),
         ),
     )
+    strand_switch_turn: float = field(
+        default=math.radians(30.0),
+        metadata=described(
+            "beyond the hook window, where a sequence turns by more than this over one RoI radius "
+            "at a crossing while mask lies straight on beyond it and the crossing strand's far arm "
+            "behind the turn, it has left its thread for the other strand: it is cut there "
+            "(suture_ordering.strand_switch; rad, pi: off)",
+            (0.0, math.pi),
+        ),
+    )
     wide_arc_factor: float = field(
         default=1.6,
         metadata=described(

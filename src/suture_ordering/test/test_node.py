@@ -274,3 +274,22 @@ def test_points_bridged_under_a_wide_occluder_are_published_with_z_one(ros):
         assert not_seen[under].all() and (not_seen & ~under).sum() <= 16
         distance, index = cKDTree(truth - [shift, 0]).query(points[:, :2])
         assert distance[not_seen].max() < 3.0 and index[-1] > 0.95 * len(truth)
+
+
+def test_a_sequence_that_took_the_crossing_strand_is_published_cut_and_counted(ros):
+    """Our thread's mask lost 30 px just past a 45 degree crossing, where the search takes the
+    other strand: the node publishes both sequences cut at the crossing and counts the frame."""
+    executor, node, publishers, received = ros
+    camera = StereoCamera.default(W, H)
+    left = np.zeros((H, W), np.uint8)
+    cv2.line(left, (100, 240), (560, 240), 255, 3)
+    left[235:246, 300:330] = 0
+    cv2.line(left, (159, 381), (441, 99), 255, 3)  # through (300, 240) at 45 degrees
+    right = np.roll(left, -26, axis=1)
+    _wait_for_subscribers(executor, publishers)
+    heard = _send_until_heard(executor, publishers, received, STAMP, left, right, (100.0, 240.0), camera)
+    assert heard, "no sequences after 20 frames"
+    for topic, crossing in ((topics.LEFT_SEQUENCE, 300), (topics.RIGHT_SEQUENCE, 274)):
+        points = polygon_to_array(received[topic][0])
+        assert np.all(np.abs(points[:, 1] - 240) <= 2) and abs(points[-1, 0] - crossing) <= 12
+    assert node.frames_cut >= 1 and not node.dropped

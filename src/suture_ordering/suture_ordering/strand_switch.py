@@ -1,0 +1,104 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Where a sequence leaves its thread at a crossing for the other strand.
+
+Two threads cross in an X. Where the segmenter loses a few pixels of our thread just past the
+crossing (a faint stretch, a line of tissue texture beside it), the mask shows our arm coming in
+and the other strand passing through, and the search, finding no mask straight on, takes the
+other strand: it turns at the crossing by about the crossing's angle, and everything after is
+another thread. If that happens before the grasp point, the grasp lands on the other thread;
+both views usually lose the same stretch, so the stereo pair does not tell.
+
+What does tell is the X itself. Where the sequence turns by more than ``strand_switch_turn``
+over one RoI radius Υ on either side (the turn measured between the chords Υ back and Υ on),
+look for mask off the sequence in two places: straight on along the way it came, Υ to 1.5 Υ
+away within :data:`AHEAD_HALF_ANGLE_DEG` (our thread beyond the stretch the mask lost), and
+behind the way it leaves, Υ / 2 to Υ away within :data:`BEHIND_HALF_ANGLE_DEG` (the other
+strand's arm on the far side of the crossing). Both present: the sequence arrived on one strand
+and left on the other, and :func:`strand_switch_index` gives the point where it turned. A thread's
+own bends do not show this: a loop's other pass lies on the sequence itself, and a curve has no
+strand passing through it. The check starts past the hook window (``HOOK_WINDOW`` RoI radii of
+the sequence), where a hook's arms turn sharply beside each other.
+
+Units: pixels (u, v); the radius and angles come from the ordering's scaled parameters.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+#: Mask straight on counts within this angle (deg) of the way the sequence came.
+AHEAD_HALF_ANGLE_DEG = 15.0
+#: The other strand's far arm counts within this angle (deg) of the reverse of the way out.
+BEHIND_HALF_ANGLE_DEG = 20.0
+#: Mask pixels farther than this (px at 640 px width) from the sequence are off it.
+OFF_SEQUENCE_PX = 3.0
+#: The rays are sampled every this many degrees.
+RAY_STEP_DEG = 3.0
+
+
+def strand_switch_index(
+    mask: np.ndarray, sequence: np.ndarray, radius: int, min_turn: float, start: float, scale: float = 1.0
+) -> int | None:
+    """Index into ``sequence`` where it turns off its thread onto a crossing strand, or None.
+
+    ``mask``: (H, W) the mask the sequence was ordered on, nonzero = thread; ``sequence``:
+    (N, 2) float (u, v) from the cut tip, about 1 px apart; ``radius``: Υ (px), the chords'
+    length on either side of a point; ``min_turn``: rad, the least turn checked; ``start``: px of
+    arc from the tip before which nothing is checked; ``scale``: image width / 640.
+    """
+    points = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+    if radius < 2 or min_turn >= math.pi or len(points) < 2 * radius + 1:
+        return None
+    arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))))
+    first = max(radius, int(np.searchsorted(arc, start)))
+    index = np.arange(first, len(points) - radius)
+    if not len(index):
+        return None
+    came = points[index] - points[index - radius]
+    leaves = points[index + radius] - points[index]
+    turn = np.abs(
+        np.arctan2(came[:, 0] * leaves[:, 1] - came[:, 1] * leaves[:, 0], (came * leaves).sum(axis=1))
+    )
+    turning = np.flatnonzero(turn >= min_turn)
+    if not len(turning):
+        return None
+    off_sequence = _off_sequence(mask, points, OFF_SEQUENCE_PX * scale)
+    for k in turning.tolist():
+        here = points[index[k]]
+        if _any_on(
+            off_sequence, here, came[k], radius * np.array([1.0, 1.25, 1.5]), AHEAD_HALF_ANGLE_DEG
+        ) and _any_on(
+            off_sequence, here, -leaves[k], radius * np.array([0.5, 0.75, 1.0]), BEHIND_HALF_ANGLE_DEG
+        ):
+            return int(index[k])
+    return None
+
+
+def _off_sequence(mask: np.ndarray, points: np.ndarray, clearance: float) -> np.ndarray:
+    """(H, W) bool: mask pixels farther than ``clearance`` px from the polyline ``points``."""
+    height, width = mask.shape
+    not_on = np.ones((height, width), dtype=np.uint8)
+    cv2.polylines(not_on, [np.round(points).astype(np.int32)], False, 0, 1)
+    distance = cv2.distanceTransform(not_on, cv2.DIST_L2, 3)
+    return (np.asarray(mask) > 0) & (distance > clearance)
+
+
+def _any_on(
+    off_sequence: np.ndarray,
+    origin: np.ndarray,
+    direction: np.ndarray,
+    distances: np.ndarray,
+    half_angle_deg: float,
+) -> bool:
+    """Whether any ray sample from ``origin`` within ``half_angle_deg`` of ``direction`` (2,), at
+    ``distances`` (k,) px, falls on ``off_sequence``."""
+    heading = math.atan2(float(direction[1]), float(direction[0]))
+    angles = heading + np.radians(np.arange(-half_angle_deg, half_angle_deg + 1e-9, RAY_STEP_DEG))
+    u = np.round(origin[0] + distances[:, None] * np.cos(angles)[None, :]).astype(int).ravel()
+    v = np.round(origin[1] + distances[:, None] * np.sin(angles)[None, :]).astype(int).ravel()
+    height, width = off_sequence.shape
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    return bool(off_sequence[v[inside], u[inside]].any())
