@@ -50,15 +50,17 @@ def _crossing(angle_deg: float, lost: tuple[int, int] | None = (300, 330)) -> np
     return mask
 
 
+def _onto_the_other_strand(tip_u: float) -> np.ndarray:
+    """A sequence along row 240 from ``tip_u`` to the crossing at (300, 240), then 150 px up the
+    45 degree strand of :func:`_crossing`."""
+    t = math.radians(-45.0)
+    on = _line((300, 240), (300 + 150 * math.cos(t), 240 + 150 * math.sin(t)))
+    return np.vstack([_line((tip_u, 240), (300, 240)), on[1:]])
+
+
 def test_a_turn_onto_the_crossing_strand_is_found_at_the_crossing() -> None:
     mask = _crossing(-45.0)
-    t = math.radians(-45.0)
-    switched = np.vstack(
-        [
-            _line((100, 240), (300, 240)),
-            _line((300, 240), (300 + 150 * math.cos(t), 240 + 150 * math.sin(t)))[1:],
-        ]
-    )
+    switched = _onto_the_other_strand(100)
     index = strand_switch_index(mask, switched, RADIUS, TURN, START)
     assert index is not None
     assert abs(switched[index, 0] - 300) <= RADIUS / 2 and abs(switched[index, 1] - 240) <= RADIUS / 2
@@ -68,13 +70,7 @@ def test_no_switch_without_our_thread_beyond_the_crossing() -> None:
     """A thread that ends on the other strand leaves no mask straight on: nothing to tell a turn
     from the end of the thread, so nothing is cut."""
     mask = _crossing(-45.0, lost=None)
-    t = math.radians(-45.0)
-    along = np.vstack(
-        [
-            _line((100, 240), (300, 240)),
-            _line((300, 240), (300 + 150 * math.cos(t), 240 + 150 * math.sin(t)))[1:],
-        ]
-    )
+    along = _onto_the_other_strand(100)
     assert strand_switch_index(mask, along, RADIUS, TURN, START) is None
 
 
@@ -91,13 +87,7 @@ def test_a_bend_and_a_loop_of_the_thread_itself_are_not_switches() -> None:
 
 def test_nothing_is_checked_inside_the_hook_window() -> None:
     mask = _crossing(-45.0)
-    t = math.radians(-45.0)
-    switched = np.vstack(
-        [
-            _line((240, 240), (300, 240)),
-            _line((300, 240), (300 + 150 * math.cos(t), 240 + 150 * math.sin(t)))[1:],
-        ]
-    )
+    switched = _onto_the_other_strand(240)
     assert strand_switch_index(mask, switched, RADIUS, TURN, START) is None  # the turn is 60 px from the tip
     assert strand_switch_index(mask, switched, RADIUS, TURN, 0.0) is not None
 
