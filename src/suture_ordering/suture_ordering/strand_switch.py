@@ -35,6 +35,9 @@ AHEAD_HALF_ANGLE_DEG = 15.0
 BEHIND_HALF_ANGLE_DEG = 20.0
 #: Mask pixels farther than this (px at 640 px width) from the sequence are off it.
 OFF_SEQUENCE_PX = 3.0
+#: Distances (in RoI radii) at which mask straight on, and the far arm behind, are looked for.
+AHEAD_REACH = np.array([1.0, 1.25, 1.5])
+BEHIND_REACH = np.array([0.5, 0.75, 1.0])
 #: The rays are sampled every this many degrees.
 RAY_STEP_DEG = 3.0
 
@@ -65,40 +68,55 @@ def strand_switch_index(
     turning = np.flatnonzero(turn >= min_turn)
     if not len(turning):
         return None
-    off_sequence = _off_sequence(mask, points, OFF_SEQUENCE_PX * scale)
-    for k in turning.tolist():
-        here = points[index[k]]
-        if _any_on(
-            off_sequence, here, came[k], radius * np.array([1.0, 1.25, 1.5]), AHEAD_HALF_ANGLE_DEG
-        ) and _any_on(
-            off_sequence, here, -leaves[k], radius * np.array([0.5, 0.75, 1.0]), BEHIND_HALF_ANGLE_DEG
-        ):
-            return int(index[k])
-    return None
+    origins = points[index[turning]]
+    ahead = _ray_pixels(origins, came[turning], radius * AHEAD_REACH, AHEAD_HALF_ANGLE_DEG)
+    behind = _ray_pixels(origins, -leaves[turning], radius * BEHIND_REACH, BEHIND_HALF_ANGLE_DEG)
+    off_sequence, corner = _off_sequence(
+        mask, points, OFF_SEQUENCE_PX * scale, np.vstack((ahead.reshape(-1, 2), behind.reshape(-1, 2)))
+    )
+    both = np.flatnonzero(_any_on(off_sequence, corner, ahead) & _any_on(off_sequence, corner, behind))
+    return int(index[turning[both[0]]]) if len(both) else None
 
 
-def _off_sequence(mask: np.ndarray, points: np.ndarray, clearance: float) -> np.ndarray:
-    """(H, W) bool: mask pixels farther than ``clearance`` px from the polyline ``points``."""
+def _ray_pixels(
+    origins: np.ndarray, directions: np.ndarray, distances: np.ndarray, half_angle_deg: float
+) -> np.ndarray:
+    """(K, D * A, 2) int (u, v): the pixels of rays from each of ``origins`` (K, 2) within
+    ``half_angle_deg`` of its direction (K, 2), every :data:`RAY_STEP_DEG`, at ``distances`` (D,) px."""
+    headings = np.array([math.atan2(float(v), float(u)) for u, v in directions])
+    angles = headings[:, None] + np.radians(np.arange(-half_angle_deg, half_angle_deg + 1e-9, RAY_STEP_DEG))
+    u = np.round(origins[:, 0, None, None] + distances[None, :, None] * np.cos(angles)[:, None, :])
+    v = np.round(origins[:, 1, None, None] + distances[None, :, None] * np.sin(angles)[:, None, :])
+    return np.stack((u, v), axis=-1).astype(int).reshape(len(origins), -1, 2)
+
+
+def _off_sequence(
+    mask: np.ndarray, points: np.ndarray, clearance: float, pixels: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mask pixels farther than ``clearance`` px from the polyline ``points``, as (h, w) bool over
+    the box round ``pixels`` (..., 2) int (u, v) clipped to the image, and that box's first (u, v).
+    The distances are measured over the box widened by the clearance and two pixels: a point of the
+    polyline outside it lies farther than the clearance from every one of ``pixels``."""
     height, width = mask.shape
+    margin = math.ceil(clearance) + 2
+    flat = pixels.reshape(-1, 2)
+    u0, v0 = (int(max(0, flat[:, k].min() - margin)) for k in (0, 1))
+    u1 = int(min(width, flat[:, 0].max() + margin + 1))
+    v1 = int(min(height, flat[:, 1].max() + margin + 1))
+    if u0 >= u1 or v0 >= v1:
+        return np.zeros((0, 0), dtype=bool), np.array([u0, v0])
     not_on = np.ones((height, width), dtype=np.uint8)
     cv2.polylines(not_on, [np.round(points).astype(np.int32)], False, 0, 1)
-    distance = cv2.distanceTransform(not_on, cv2.DIST_L2, 3)
-    return (np.asarray(mask) > 0) & (distance > clearance)
+    distance = cv2.distanceTransform(not_on[v0:v1, u0:u1], cv2.DIST_L2, 3)
+    return (np.asarray(mask)[v0:v1, u0:u1] > 0) & (distance > clearance), np.array([u0, v0])
 
 
-def _any_on(
-    off_sequence: np.ndarray,
-    origin: np.ndarray,
-    direction: np.ndarray,
-    distances: np.ndarray,
-    half_angle_deg: float,
-) -> bool:
-    """Whether any ray sample from ``origin`` within ``half_angle_deg`` of ``direction`` (2,), at
-    ``distances`` (k,) px, falls on ``off_sequence``."""
-    heading = math.atan2(float(direction[1]), float(direction[0]))
-    angles = heading + np.radians(np.arange(-half_angle_deg, half_angle_deg + 1e-9, RAY_STEP_DEG))
-    u = np.round(origin[0] + distances[:, None] * np.cos(angles)[None, :]).astype(int).ravel()
-    v = np.round(origin[1] + distances[:, None] * np.sin(angles)[None, :]).astype(int).ravel()
+def _any_on(off_sequence: np.ndarray, corner: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(K,) whether any of each row of ``pixels`` (K, S, 2) int (u, v) falls on ``off_sequence``
+    (a box whose first pixel is ``corner``); pixels outside it count as off the mask."""
+    u, v = pixels[..., 0] - corner[0], pixels[..., 1] - corner[1]
     height, width = off_sequence.shape
     inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    return bool(off_sequence[v[inside], u[inside]].any())
+    hit = np.zeros(u.shape, dtype=bool)
+    hit[inside] = off_sequence[v[inside], u[inside]]
+    return hit.any(axis=1)
