@@ -17,12 +17,15 @@
 #    predicted no thread at all, IoU 0);
 #    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen,
 #    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 74.2 / 66.0);
-# 3. int8 ONNX exports of M-oST and M-ToSOT, calibrated on frames of their training domain;
+#    m_onsite (the node's default): every layer of M-oST fine-tuned on 400 more on-site images
+#    (200 frames), then continued on those and 400 more (its last.pt; the validation images only
+#    pick best.pt);
+# 3. int8 ONNX exports of M-oST, M-ToSOT and m_onsite, calibrated on frames of their training domain;
 # 4. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
 #
-# On 2 CPU cores this takes about 120 minutes; with DEVICE=cuda a few minutes.
+# On 2 CPU cores this takes about 150 minutes; with DEVICE=cuda a few minutes.
 # The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt,
-# OUT/m_tosot/best.pt, OUT/m_ost_int8.onnx and OUT/m_tosot_int8.onnx of this script.
+# OUT/m_tosot/best.pt, OUT/m_onsite/last.pt and the three OUT/*_int8.onnx of this script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash ros2_ws/setup.sh >/dev/null
@@ -43,6 +46,18 @@ simulate legacy_val 3002 10 legacy
 simulate onsite_train 3101 20 on-site
 simulate onsite_set1 3201 20 on-site phantom
 simulate onsite_set2 3301 20 on-site printed
+simulate onsite_pool 38112 200 on-site
+simulate onsite_pool2 38113 200 on-site
+if [ ! -d "$DATA/onsite_pool800" ]; then  # both pools, as pool_NAME and pool2_NAME
+    for kind in images masks; do
+        mkdir -p "$DATA/onsite_pool800/$kind"
+        for pool in pool pool2; do
+            for file in "$DATA/onsite_$pool/$kind"/*.png; do
+                ln -s "$(realpath "$file")" "$DATA/onsite_pool800/$kind/${pool}_$(basename "$file")"
+            done
+        done
+    done
+fi
 
 "$BIN/suture-seg" train --images "$DATA/legacy_train/images" --masks "$DATA/legacy_train/masks" \
     --val-images "$DATA/legacy_val/images" --val-masks "$DATA/legacy_val/masks" \
@@ -65,10 +80,22 @@ simulate onsite_set2 3301 20 on-site printed
     --images "$DATA/onsite_train/images" --masks "$DATA/onsite_train/masks" \
     --epochs 30 --steps-per-epoch 100 --seed 0 --device "$DEVICE" --out "$OUT/m_tosot"
 
+"$BIN/suture-seg" finetune --weights "$OUT/m_ost/best.pt" --all-layers \
+    --images "$DATA/onsite_pool/images" --masks "$DATA/onsite_pool/masks" \
+    --loss ce --lr 3e-4 --structure-crops 0.35 --epochs 10 --steps-per-epoch 100 --seed 0 \
+    --device "$DEVICE" --out "$OUT/m_onsite_stage1"
+"$BIN/suture-seg" train --init "$OUT/m_onsite_stage1/last.pt" \
+    --images "$DATA/onsite_pool800/images" --masks "$DATA/onsite_pool800/masks" \
+    --val-images "$DATA/onsite_train/images" --val-masks "$DATA/onsite_train/masks" \
+    --loss ce --lr 2e-4 --structure-crops 0.35 --epochs 15 --steps-per-epoch 100 --seed 2 \
+    --device "$DEVICE" --out "$OUT/m_onsite"
+
 "$BIN/suture-seg" export --weights "$OUT/m_ost/best.pt" --int8 \
     --calibration-images "$DATA/legacy_train_big/images" --out "$OUT/m_ost_int8.onnx"
 "$BIN/suture-seg" export --weights "$OUT/m_tosot/best.pt" --int8 \
     --calibration-images "$DATA/onsite_train/images" --out "$OUT/m_tosot_int8.onnx"
+"$BIN/suture-seg" export --weights "$OUT/m_onsite/last.pt" --int8 \
+    --calibration-images "$DATA/onsite_pool/images" --out "$OUT/m_onsite_int8.onnx"
 
 # --no-flip-average: one pass per image, as in the paper's Table I
 "$BIN/suture-seg" evaluate --no-flip-average \

@@ -9,7 +9,7 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    # The shipped M-oST and M-ToSOT checkpoints (docs/results.md, "Segmentation").
+    # The shipped checkpoints and their int8 exports (docs/results.md, "Segmentation").
     package_data={package_name: ["weights/*.pt", "weights/*.onnx"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),

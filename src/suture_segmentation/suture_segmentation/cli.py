@@ -127,7 +127,7 @@ def _build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--report", help="folder for table.md, scores.json, per-image plot and overlays")
 
     export = commands.add_parser("export", help="write an ONNX model")
-    export.add_argument("--weights", default="m_tosot", help="checkpoint (default: shipped M-ToSOT)")
+    export.add_argument("--weights", default="m_onsite", help="checkpoint (default: shipped m_onsite)")
     export.add_argument("--out", required=True, help="ONNX file to write")
     export.add_argument(
         "--int8",
@@ -140,7 +140,7 @@ def _build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="milliseconds per stereo pair for each backend")
     bench.add_argument(
         "--weights",
-        help="default: the node's (M-ToSOT: its int8 export with onnx on the CPU, the float model otherwise)",
+        help="default: the node's (m_onsite: its int8 export with onnx on the CPU, else the float model)",
     )
     bench.add_argument("--backends", default="onnx,torch")
     bench.add_argument("--device", default="cpu", help="cpu or cuda")

@@ -252,7 +252,7 @@ def finetune(
     """Transfer: load ``checkpoint``, freeze its feature extractor, train the rest (see :func:`train`);
     with ``config.all_layers`` train every layer.
 
-    ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_tosot"``).
+    ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_onsite"`` ...).
     """
     model, source_meta = load_checkpoint(checkpoint, device)
     if not config.all_layers:

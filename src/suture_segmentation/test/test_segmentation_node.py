@@ -6,7 +6,7 @@ test processes do not hear each other; the node under test and a peer node that 
 inputs and collects its outputs share one executor spun here.
 
 The sample bag is in the simulator's ``legacy`` domain, so its test runs the shipped M-oST weights
-(``weights:=m_ost``, the model for that domain; the node's default is the on-site M-ToSOT); the
+(``weights:=m_ost``, the model for that domain; the node's default is the on-site m_onsite); the
 other tests use a small random checkpoint written to a temporary folder.
 """
 

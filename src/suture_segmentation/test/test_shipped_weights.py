@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The shipped checkpoints: small, made by the recorded command, and M-ToSOT wins on the on-site domain.
+"""The shipped checkpoints: small, made by the recorded command, and the on-site models win on the on-site domain.
 
 The on-site frames here are fresh simulator frames (seed 4242, not the training or test seeds of
 ``ros2_ws/train_segmentation.sh``).
@@ -21,9 +21,11 @@ from suture_sim.scene import SimConfig, generate_frame
 
 #: Mean IoU the shipped M-ToSOT must reach on the fresh on-site frames (measured 0.815; M-oST 0.457).
 MIN_TOSOT_IOU = 0.72
+#: The same for m_onsite, the node's default, trained on 20 times M-ToSOT's labels (measured 0.821).
+MIN_ONSITE_IOU = 0.78
 
 
-@pytest.mark.parametrize("name", ["m_ost", "m_tosot", "m_general"])
+@pytest.mark.parametrize("name", ["m_ost", "m_tosot", "m_general", "m_onsite"])
 def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     path = SHIPPED[name]
     assert path.stat().st_size < 2_000_000
@@ -39,6 +41,10 @@ def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     if name == "m_general":  # M-oST continued on domain-randomised frames, kornia augmentation
         assert meta["config"]["augment"] and "--augment" in meta["command"]
         assert meta["initialised_from"]["weights"] == "m_ost"
+    if name == "m_onsite":  # every layer of M-oST fine-tuned on 400 on-site images, then on 800
+        first = meta["initialised_from"]["command"]
+        assert first.startswith("suture-seg finetune --weights m_ost") and "--all-layers" in first
+        assert meta["training_images"] == 800
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +55,7 @@ def onsite_frames() -> list:
 
 def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) -> None:
     scores = {}
-    for name in ("m_ost", "m_tosot"):
+    for name in ("m_ost", "m_tosot", "m_onsite"):
         segmenter = Segmenter(name, backend="onnx")
         per_view = []
         for frame in onsite_frames:
@@ -60,6 +66,10 @@ def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) 
     assert scores["m_tosot"].iou > scores["m_ost"].iou + 0.1
     assert scores["m_tosot"].iou >= MIN_TOSOT_IOU
     assert scores["m_tosot"].f1 > scores["m_ost"].f1
+    # on six views m_onsite and M-ToSOT score alike (0.821 / 0.822); its gain is continuity on
+    # harder frames, measured over 200-frame sets in docs/results.md
+    assert scores["m_onsite"].iou > scores["m_ost"].iou + 0.1
+    assert scores["m_onsite"].iou >= MIN_ONSITE_IOU
 
 
 @pytest.mark.parametrize(
@@ -68,6 +78,7 @@ def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) 
         ("m_ost", "legacy", "legacy_train_big"),
         ("m_tosot", "on-site", "onsite_train"),
         ("m_general", "on-site", "mix"),
+        ("m_onsite", "on-site", "pool"),
     ],
 )
 def test_shipped_int8_models_score_as_their_float_models(name: str, domain: str, calibration: str) -> None:
