@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: Apache-2.0
-"""The shipped checkpoints: small, made by the recorded command, and the on-site models win on the on-site domain.
+"""The shipped checkpoints: small, made by the recorded command, the on-site models best on site.
 
 The on-site frames here are fresh simulator frames (seed 4242, not the training or test seeds of
 ``ros2_ws/train_segmentation.sh``).
