@@ -57,8 +57,7 @@ class Segmenter:
         (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_onsite"``/``"m_tosot"``/
         ``"m_general"`` (or their int8 ONNX exports, ``"m_ost_int8"`` ...) for a shipped model, or
         None for the shipped on-site model ``m_onsite``: its int8 export with the ONNX backend on
-        the CPU (with ``flip_average``, the two fit 150 ms per 640×480 pair on 2 cores), the
-        float model otherwise.
+        the CPU (``suture-seg bench`` times it on yours), the float model otherwise.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
     device : str
