@@ -17,15 +17,18 @@
 #    predicted no thread at all, IoU 0);
 #    M-ToSOT: M-oST fine-tuned on the same 40 on-site images with the 13-layer extractor frozen,
 #    the same 30 epochs (10 epochs, about 5 minutes, already give IoU 74.2 / 66.0);
-#    m_onsite (the node's default): every layer of M-oST fine-tuned on 400 more on-site images
-#    (200 frames), then continued on those and 400 more (its last.pt; the validation images only
-#    pick best.pt);
-# 3. int8 ONNX exports of M-oST, M-ToSOT and m_onsite, calibrated on frames of their training domain;
+#    m_onsite: every layer of M-oST fine-tuned on 400 more on-site images (200 frames), then
+#    continued on those and 400 more (its last.pt; the validation images only pick best.pt);
+#    m_onsite_half (the node's default): m_onsite's half-resolution variant (model.py), its
+#    coarser layers copied from m_onsite, every layer trained on the same 800 images (best.pt);
+# 3. int8 ONNX exports of M-oST, M-ToSOT, m_onsite and m_onsite_half, calibrated on frames of
+#    their training domain;
 # 4. Table I, per-image IoU/F1 plot and overlays on both test sets (OUT/report).
 #
-# On 2 CPU cores this takes about 150 minutes; with DEVICE=cuda a few minutes.
+# On 2 CPU cores this takes about 170 minutes; with DEVICE=cuda a few minutes.
 # The shipped weights (src/suture_segmentation/suture_segmentation/weights/) are OUT/m_ost/best.pt,
-# OUT/m_tosot/best.pt, OUT/m_onsite/last.pt and the three OUT/*_int8.onnx of this script.
+# OUT/m_tosot/best.pt, OUT/m_onsite/last.pt, OUT/m_onsite_half/best.pt and the four
+# OUT/*_int8.onnx of this script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash ros2_ws/setup.sh >/dev/null
@@ -89,6 +92,11 @@ fi
     --val-images "$DATA/onsite_train/images" --val-masks "$DATA/onsite_train/masks" \
     --loss ce --lr 2e-4 --structure-crops 0.35 --epochs 15 --steps-per-epoch 100 --seed 2 \
     --device "$DEVICE" --out "$OUT/m_onsite"
+"$BIN/suture-seg" train --init "$OUT/m_onsite/last.pt" --half-resolution \
+    --images "$DATA/onsite_pool800/images" --masks "$DATA/onsite_pool800/masks" \
+    --val-images "$DATA/onsite_train/images" --val-masks "$DATA/onsite_train/masks" \
+    --loss ce --lr 1e-3 --structure-crops 0.35 --epochs 25 --steps-per-epoch 100 --seed 3 \
+    --device "$DEVICE" --out "$OUT/m_onsite_half"
 
 "$BIN/suture-seg" export --weights "$OUT/m_ost/best.pt" --int8 \
     --calibration-images "$DATA/legacy_train_big/images" --out "$OUT/m_ost_int8.onnx"
@@ -96,6 +104,8 @@ fi
     --calibration-images "$DATA/onsite_train/images" --out "$OUT/m_tosot_int8.onnx"
 "$BIN/suture-seg" export --weights "$OUT/m_onsite/last.pt" --int8 \
     --calibration-images "$DATA/onsite_pool/images" --out "$OUT/m_onsite_int8.onnx"
+"$BIN/suture-seg" export --weights "$OUT/m_onsite_half/best.pt" --int8 \
+    --calibration-images "$DATA/onsite_pool/images" --out "$OUT/m_onsite_half_int8.onnx"
 
 # --no-flip-average: one pass per image, as in the paper's Table I
 "$BIN/suture-seg" evaluate --no-flip-average \

@@ -123,7 +123,8 @@ def evaluate(
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
     ``seg_weights`` picks the segmentation model for ``masks="predicted"`` (a checkpoint path or
-    a shipped name such as ``m_onsite`` or ``m_ost``); None is the stage's default (``m_onsite``).
+    a shipped name such as ``m_onsite_half`` or ``m_ost``); None is the stage's default
+    (``m_onsite_half``).
     ``use_images``: refine the 3D stage's disparity with the images; ``use_low_masks``: give the
     ordering the low masks of the predicted masks (module docstring); ``flip_average``: average
     each image's suture probability with its mirror image's (segmentation_node's default).

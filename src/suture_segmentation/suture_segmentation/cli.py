@@ -49,7 +49,10 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
     parser.add_argument("--steps-per-epoch", type=int, default=defaults.steps_per_epoch)
     parser.add_argument("--batch-size", type=int, default=defaults.batch_size)
     parser.add_argument(
-        "--crop", type=int, default=defaults.crop, help="crop side in pixels (multiple of 16)"
+        "--crop",
+        type=int,
+        default=defaults.crop,
+        help="crop side in pixels (multiple of 16; of 32 with a half-resolution model)",
     )
     parser.add_argument("--lr", type=float, default=defaults.learning_rate, help="initial learning rate")
     parser.add_argument(
@@ -102,7 +105,16 @@ def _build_parser() -> argparse.ArgumentParser:
 
     train = commands.add_parser("train", help="train every layer from scratch (M-oST, M-TOT)")
     _training_arguments(train, "train")
-    train.add_argument("--widths", default="8,16,32,48,64", help="channel widths C1..C5")
+    train.add_argument(
+        "--widths",
+        help="channel widths C1..C5 (default 8,16,32,48,64; with --half-resolution 24,16,32,48,64)",
+    )
+    train.add_argument(
+        "--half-resolution",
+        action="store_true",
+        help="the half-resolution variant (about half the run time; model.py); with --init, the "
+        "checkpoint's tensors that fit are copied",
+    )
     train.add_argument(
         "--init", help="continue from this checkpoint or shipped name (every layer trained; --widths ignored)"
     )
@@ -127,7 +139,9 @@ def _build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--report", help="folder for table.md, scores.json, per-image plot and overlays")
 
     export = commands.add_parser("export", help="write an ONNX model")
-    export.add_argument("--weights", default="m_onsite", help="checkpoint (default: shipped m_onsite)")
+    export.add_argument(
+        "--weights", default="m_onsite_half", help="checkpoint (default: shipped m_onsite_half)"
+    )
     export.add_argument("--out", required=True, help="ONNX file to write")
     export.add_argument(
         "--int8",
@@ -140,7 +154,8 @@ def _build_parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="milliseconds per stereo pair for each backend")
     bench.add_argument(
         "--weights",
-        help="default: the node's (m_onsite: its int8 export with onnx on the CPU, else the float model)",
+        help="default: the node's (m_onsite_half: its int8 export with onnx on the CPU, else the "
+        "float model)",
     )
     bench.add_argument("--backends", default="onnx,torch")
     bench.add_argument("--device", default="cpu", help="cpu or cuda")
@@ -183,21 +198,30 @@ def _datasets(args: argparse.Namespace):  # -> tuple[LabelledImages, LabelledIma
 
 
 def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
-    from suture_segmentation.checkpoint import load_checkpoint
-    from suture_segmentation.model import SutureUNet
+    import torch
+
+    from suture_segmentation.checkpoint import copy_fitting_tensors, load_checkpoint
+    from suture_segmentation.model import DEFAULT_WIDTHS, HALF_RESOLUTION_WIDTHS, SutureUNet
     from suture_segmentation.train import finetune, train
 
     config = training_config(args)
     training, validation = _datasets(args)
     meta = {"command": "suture-seg " + shlex.join(argv)}
     progress = not args.quiet
-    if args.command == "train" and args.init:
-        model, source = load_checkpoint(args.init, args.device)
-        meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
+    if args.command == "train":
+        if args.init:
+            model, source = load_checkpoint(args.init, args.device)
+            meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
+            if args.half_resolution and not model.half_resolution:
+                torch.manual_seed(config.seed)  # the new layers' initial weights
+                source_model, model = model, SutureUNet((HALF_RESOLUTION_WIDTHS[0], *model.widths[1:]), True)
+                meta["initialised_from"]["tensors_copied"] = copy_fitting_tensors(source_model, model)
+        elif args.widths:
+            model = SutureUNet([int(w) for w in args.widths.split(",")], args.half_resolution)
+        else:
+            widths = HALF_RESOLUTION_WIDTHS if args.half_resolution else DEFAULT_WIDTHS
+            model = SutureUNet(widths, args.half_resolution)
         best = train(model, training, validation, config, args.out, meta, args.device, progress)
-    elif args.command == "train":
-        widths = [int(w) for w in args.widths.split(",")]
-        best = train(SutureUNet(widths), training, validation, config, args.out, meta, args.device, progress)
     else:
         best = finetune(args.weights, training, validation, config, args.out, meta, args.device, progress)
     print(

@@ -7,7 +7,7 @@ This is the ROS-free entry point that ``segmentation_node`` and ``suture-eval`` 
   as one batch (of four by default: each view and its mirror image, whose probabilities are
   averaged); :meth:`Segmenter.segment_pair_with_low` also gives the pair's low masks
   (hysteresis down to ``low_threshold``), which the node graph publishes for the ordering stage.
-* :func:`segment_stereo` is the same with the shipped on-site model ``m_onsite`` (its int8 export
+* :func:`segment_stereo` is the same with the shipped on-site model ``m_onsite_half`` (its int8 export
   on ONNX Runtime, CPU), loaded once per process.
 
 Images are (H, W, 3) uint8 RGB or (H, W) uint8 grey; masks are (H, W) uint8, 0 or 255. Both
@@ -36,7 +36,7 @@ BACKENDS = ("onnx", "torch")
 LOW_THRESHOLD = 0.3
 #: The shipped on-site model that ``weights=None`` loads on ONNX Runtime on the CPU: its int8 export,
 #: twice as fast as the float model, so that the default flip averaging keeps its cost.
-DEFAULT_CPU_WEIGHTS = "m_onsite_int8"
+DEFAULT_CPU_WEIGHTS = "m_onsite_half_int8"
 
 
 class SegmentationInputError(ValueError):
@@ -54,9 +54,10 @@ class Segmenter:
     ----------
     weights : str or pathlib.Path, optional
         A ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx`` file
-        (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_onsite"``/``"m_tosot"``/
-        ``"m_general"`` (or their int8 ONNX exports, ``"m_ost_int8"`` ...) for a shipped model, or
-        None for the shipped on-site model ``m_onsite``: its int8 export with the ONNX backend on
+        (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_onsite_half"``/
+        ``"m_onsite"``/``"m_tosot"``/``"m_general"`` (or their int8 ONNX exports, ``"m_ost_int8"``
+        ...) for a shipped model, or None for the shipped on-site model ``m_onsite_half``: its
+        int8 export with the ONNX backend on
         the CPU (``suture-seg bench`` times it on yours), the float model otherwise.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
@@ -309,10 +310,10 @@ def image_array(images: list[np.ndarray]) -> np.ndarray:
 
 @functools.cache
 def default_segmenter() -> Segmenter:
-    """The process-wide segmenter with the shipped ``m_onsite`` weights (ONNX Runtime, CPU)."""
+    """The process-wide segmenter with the shipped ``m_onsite_half`` weights (ONNX Runtime, CPU)."""
     return Segmenter()
 
 
 def segment_stereo(left_image: np.ndarray, right_image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of a stereo pair with the shipped ``m_onsite`` model; see :class:`Segmenter`."""
+    """Masks of a stereo pair with the shipped ``m_onsite_half`` model; see :class:`Segmenter`."""
     return default_segmenter().segment_pair(left_image, right_image)

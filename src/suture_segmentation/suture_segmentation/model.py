@@ -16,13 +16,22 @@ with its activation is one layer, a pooling is one layer), our extractor is exac
 ====  ==========================  ====  ==========================
 
 Everything after it (the second bottleneck convolution, four up-sampling stages with skip
-connections and the 1x1 classifier) is the part that fine-tuning trains. A "conv" is
+connections and the 1x1 classifier) is the part that fine-tuning trains.
+
+**Half-resolution variant** (``half_resolution=True``, the shipped ``m_onsite_half``). About 70 % of
+the full-resolution model's CPU time goes to the five layers that run at full resolution. This
+variant moves them to half resolution without losing a pixel: layer 1 folds each 2x2 block of
+pixels into 12 channels (``pixel_unshuffle``), layers 2 and 3 are 3x3 convolutions of C1
+channels at half resolution (no pooling), and the last decoder stage, also at half resolution,
+ends in a classifier of 2x4 channels that ``pixel_shuffle`` unfolds into (2, H, W) logits. The
+layers from 4 on are the table's, one level coarser. C1 is wider (24 against 8: the fine level
+carries four pixels per position) and the run takes about half the time. A "conv" is
 Conv2d + BatchNorm2d + ReLU; when the extractor is frozen its batch-norm statistics are frozen
 too (:meth:`SutureUNet.freeze_feature_extractor`).
 
-The widths are small (default C1..C5 = 8, 16, 32, 48, 64) so that a 640x480 stereo pair runs in
-well under 150 ms on two CPU cores with ONNX Runtime. Input: (B, 3, H, W) float32 RGB scaled to
-[0, 1] with H and W multiples of 16 (:func:`pad_to_multiple` handles other sizes). Output:
+The widths are small (default C1..C5 = 8, 16, 32, 48, 64) so that a 640x480 stereo pair runs
+fast on two CPU cores with ONNX Runtime. Input: (B, 3, H, W) float32 RGB scaled to [0, 1] with
+H and W multiples of the model's ``stride`` (:func:`pad_to_multiple` handles other sizes). Output:
 (B, 2, H, W) logits for (background, suture); the paper's cross-entropy loss applies directly.
 """
 
@@ -34,11 +43,15 @@ import torch
 from torch import nn
 from torch.nn import functional
 
-#: Down-sampling factor of the network: input sizes must be multiples of it.
-STRIDE = 16
+#: Inference pads every image to multiples of this (:func:`pad_to_multiple`), which serves both
+#: variants: a model's input sizes must be multiples of its ``stride``, 16 for the full-resolution
+#: model (four poolings) and 32 for the half-resolution one (the fold and four poolings).
+STRIDE = 32
 
 #: Default channel widths C1..C5 of the five resolution levels.
 DEFAULT_WIDTHS: tuple[int, ...] = (8, 16, 32, 48, 64)
+#: Default widths of the half-resolution variant: its C1 level holds four pixels per position.
+HALF_RESOLUTION_WIDTHS: tuple[int, ...] = (24, 16, 32, 48, 64)
 
 #: Class indices of the output logits.
 BACKGROUND, SUTURE = 0, 1
@@ -56,14 +69,17 @@ def _conv(in_channels: int, out_channels: int) -> nn.Sequential:
 class FeatureExtractor(nn.Module):
     """The 13 layers of the table above; returns the four skip tensors and the bottleneck input."""
 
-    def __init__(self, widths: Sequence[int]) -> None:
+    def __init__(self, widths: Sequence[int], half_resolution: bool = False) -> None:
         super().__init__()
         c1, c2, c3, c4, c5 = widths
+        if half_resolution:
+            first = [nn.PixelUnshuffle(2), _conv(12, c1), _conv(c1, c1)]
+        else:
+            first = [_conv(3, c1), _conv(c1, c1), nn.MaxPool2d(2)]
+        self.half_resolution = half_resolution
         self.layers = nn.ModuleList(
             [
-                _conv(3, c1),
-                _conv(c1, c1),
-                nn.MaxPool2d(2),
+                *first,
                 _conv(c1, c2),
                 _conv(c2, c2),
                 nn.MaxPool2d(2),
@@ -80,41 +96,51 @@ class FeatureExtractor(nn.Module):
     def forward(self, image: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
         skips: list[torch.Tensor] = []
         x = image
-        for layer in self.layers:
+        for index, layer in enumerate(self.layers):
             if isinstance(layer, nn.MaxPool2d):
                 skips.append(x)
             x = layer(x)
+            if self.half_resolution and index == 2:  # the fine level's skip, at half resolution
+                skips.append(x)
         return skips, x
 
 
 class _Up(nn.Module):
-    """Decoder stage: 2x bilinear up-sampling, concatenation with the skip, two convs."""
+    """Decoder stage: 2x bilinear up-sampling (unless ``upsample`` is false), concatenation with
+    the skip, two convs."""
 
-    def __init__(self, in_channels: int, skip_channels: int, out_channels: int) -> None:
+    def __init__(self, in_channels: int, skip_width: int, out_channels: int, upsample: bool = True) -> None:
         super().__init__()
+        self.upsample = upsample
         self.reduce = nn.Conv2d(in_channels, out_channels, 1)
         self.convs = nn.Sequential(
-            _conv(out_channels + skip_channels, out_channels), _conv(out_channels, out_channels)
+            _conv(out_channels + skip_width, out_channels), _conv(out_channels, out_channels)
         )
 
     def forward(self, x: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
-        x = functional.interpolate(self.reduce(x), scale_factor=2.0, mode="bilinear", align_corners=False)
+        x = self.reduce(x)
+        if self.upsample:
+            x = functional.interpolate(x, scale_factor=2.0, mode="bilinear", align_corners=False)
         return self.convs(torch.cat([x, skip], dim=1))
 
 
 class SutureUNet(nn.Module):
     """U-Net for suture segmentation, see the module docstring for the layer table."""
 
-    def __init__(self, widths: Sequence[int] = DEFAULT_WIDTHS) -> None:
+    def __init__(self, widths: Sequence[int] = DEFAULT_WIDTHS, half_resolution: bool = False) -> None:
         super().__init__()
         if len(widths) != 5 or any(int(w) < 1 for w in widths):
             raise ValueError(f"widths must be five positive channel counts, got {tuple(widths)}")
         self.widths = tuple(int(w) for w in widths)
+        self.half_resolution = bool(half_resolution)
+        self.stride = 32 if self.half_resolution else 16
         c1, c2, c3, c4, c5 = self.widths
-        self.feature_extractor = FeatureExtractor(self.widths)
+        self.feature_extractor = FeatureExtractor(self.widths, self.half_resolution)
         self.bottleneck = _conv(c5, c5)
-        self.decoder = nn.ModuleList([_Up(c5, c4, c4), _Up(c4, c3, c3), _Up(c3, c2, c2), _Up(c2, c1, c1)])
-        self.classifier = nn.Conv2d(c1, 2, 1)
+        finest = _Up(c2, c1, c1, upsample=not self.half_resolution)
+        self.decoder = nn.ModuleList([_Up(c5, c4, c4), _Up(c4, c3, c3), _Up(c3, c2, c2), finest])
+        # Half resolution: two logits for each of the four pixels a position folds (module docstring).
+        self.classifier = nn.Conv2d(c1, 8 if self.half_resolution else 2, 1)
         self._extractor_frozen = False
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -122,7 +148,8 @@ class SutureUNet(nn.Module):
         x = self.bottleneck(x)
         for up, skip in zip(self.decoder, reversed(skips), strict=True):
             x = up(x, skip)
-        return self.classifier(x)
+        logits = self.classifier(x)
+        return functional.pixel_shuffle(logits, 2) if self.half_resolution else logits
 
     def freeze_feature_extractor(self) -> None:
         """Freeze the 13 extractor layers (weights and batch-norm statistics) for fine-tuning."""

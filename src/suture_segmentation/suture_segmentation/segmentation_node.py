@@ -16,13 +16,14 @@ pixels above ``low_threshold`` connected to it, :meth:`Segmenter.segment_pair_wi
 ordering_node follows where the thread is faint; ``low_threshold`` 0 publishes none.
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped on-site
-model ``m_onsite``: its int8 export (``suture_segmentation/weights/m_onsite_int8.onnx``) with the
-onnx backend on the CPU, ``m_onsite.pt`` otherwise; "m_ost"/"m_onsite"/"m_tosot"/"m_general" name
-a shipped model and the same names with "_int8" its int8 ONNX export (backend onnx); anything
-else is a ``.pt`` checkpoint or an ``.onnx`` file. ``m_ost`` is the legacy camera's model,
-``m_tosot`` the paper's transfer to the on-site camera from 40 labelled images (``m_onsite`` has
-800), and ``m_general`` (trained on domain-randomised frames) is meant for a camera that none of
-the models has seen.
+model ``m_onsite_half``: its int8 export (``suture_segmentation/weights/m_onsite_half_int8.onnx``)
+with the onnx backend on the CPU, ``m_onsite_half.pt`` otherwise; "m_ost"/"m_onsite_half"/
+"m_onsite"/"m_tosot"/"m_general" name a shipped model and the same names with "_int8" its int8
+ONNX export (backend onnx); anything else is a ``.pt`` checkpoint or an ``.onnx`` file.
+``m_ost`` is the legacy camera's model, ``m_tosot`` the paper's transfer to the on-site camera
+from 40 labelled images, ``m_onsite`` the same camera's model from 800, and ``m_onsite_half`` its
+half-resolution variant (as accurate, half the run time); ``m_general`` (trained on
+domain-randomised frames) is meant for a camera that none of the models has seen.
 
 Weights that cannot be loaded (missing, corrupt, not a suture U-Net) stop the node at
 start-up: ``ros2 run`` prints one line, ``segmentation_node: cannot load weights: ...``, on
@@ -80,8 +81,8 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         ParameterSpec(
             "weights",
             "",
-            'model weights: "" = shipped m_onsite, "m_ost"/"m_onsite"/"m_tosot"/"m_general"[_int8], '
-            "or a .pt/.onnx file",
+            'model weights: "" = shipped m_onsite_half, "m_ost"/"m_onsite_half"/"m_onsite"/"m_tosot"/'
+            '"m_general"[_int8], or a .pt/.onnx file',
         ),
         ParameterSpec("backend", "onnx", "inference backend: onnx (ONNX Runtime) or torch"),
         ParameterSpec("device", "cpu", "cpu or cuda[:N]"),
@@ -164,7 +165,7 @@ def segmenter_from_values(values: dict[str, Any]) -> Segmenter:
             flip_average=bool(values["flip_average"]),
         )
     except WeightsError as exc:
-        hint = "" if weights else " (the shipped m_onsite; set the parameter weights to a .pt or .onnx file)"
+        hint = "" if weights else " (the shipped m_onsite_half; set the parameter weights to a .pt or .onnx)"
         raise ValueError(f"cannot load weights{hint}: {exc}") from exc
 
 

@@ -30,7 +30,7 @@ from tqdm import tqdm
 from suture_segmentation.checkpoint import load_checkpoint, save_checkpoint
 from suture_segmentation.data import CropSampler, LabelledImages
 from suture_segmentation.metrics import mean_scores, score_mask
-from suture_segmentation.model import STRIDE, SUTURE, SutureUNet, suture_probability
+from suture_segmentation.model import SUTURE, SutureUNet, suture_probability
 
 LOSSES = ("ce", "ce_dice", "ce_skeleton")
 SKELETON_WEIGHT = 0.1
@@ -45,7 +45,7 @@ class TrainConfig:
         epochs: number of epochs; one epoch is ``steps_per_epoch`` batches.
         steps_per_epoch: batches per epoch.
         batch_size: crops per batch.
-        crop: crop side in pixels (multiple of 16).
+        crop: crop side in pixels (a multiple of 16; of 32 for a half-resolution model).
         learning_rate: initial Adam learning rate (cosine decay to 5 % of it).
         loss: "ce" (the paper), "ce_dice" or "ce_skeleton" (:func:`segmentation_loss`).
         skeleton_weight: weight of the skeleton recall term of "ce_skeleton".
@@ -85,8 +85,8 @@ class TrainConfig:
             raise ValueError(
                 f"structure crops must be in [0, on_thread={self.on_thread}], got {self.structure_crops}"
             )
-        if self.crop % STRIDE or self.crop <= 0:
-            raise ValueError(f"crop must be a positive multiple of {STRIDE}, got {self.crop}")
+        if self.crop % 16 or self.crop <= 0:
+            raise ValueError(f"crop must be a positive multiple of 16, got {self.crop}")
         if min(self.epochs, self.steps_per_epoch, self.batch_size) < 1:
             raise ValueError("epochs, steps per epoch and batch size must be at least 1")
 
@@ -163,6 +163,8 @@ def train(
 
     Returns the log line of the best epoch (by validation IoU).
     """
+    if config.crop % model.stride:
+        raise ValueError(f"crop must be a multiple of the model's stride {model.stride}, got {config.crop}")
     if config.threads:
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
@@ -252,7 +254,7 @@ def finetune(
     """Transfer: load ``checkpoint``, freeze its feature extractor, train the rest (see :func:`train`);
     with ``config.all_layers`` train every layer.
 
-    ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_onsite"`` ...).
+    ``checkpoint`` is a .pt path or a shipped model's name (``"m_ost"``, ``"m_onsite_half"`` ...).
     """
     model, source_meta = load_checkpoint(checkpoint, device)
     if not config.all_layers:

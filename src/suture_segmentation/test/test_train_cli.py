@@ -153,6 +153,28 @@ def test_train_init_continues_every_layer_of_a_checkpoint(tmp_path: Path, make_f
     assert any(name.startswith("feature_extractor") for name in changed)  # not frozen, unlike finetune
 
 
+def test_train_half_resolution_from_a_full_resolution_checkpoint(tmp_path: Path, make_folder) -> None:
+    folder = make_folder(tmp_path / "data", 4, seed=3)
+    images, masks = str(folder / "images"), str(folder / "masks")
+    first = ["train", "--images", images, "--masks", masks, "--widths", "4,4,8,8,8", *TINY]
+    assert main([*first, "--out", str(tmp_path / "a")]) == 0
+    half = ["train", "--images", images, "--masks", masks, "--init", str(tmp_path / "a" / "best.pt")]
+    half += ["--half-resolution", *TINY]
+    assert main([*half, "--out", str(tmp_path / "b")]) == 2  # a 48 px crop does not fold into 32 px blocks
+    assert main([*half, "--crop", "64", "--out", str(tmp_path / "b")]) == 0
+    model, meta = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert model.half_resolution and model.widths == (24, 4, 8, 8, 8)
+    assert meta["initialised_from"]["tensors_copied"] > 0
+    assert (
+        main(["export", "--weights", str(tmp_path / "b" / "last.pt"), "--out", str(tmp_path / "h.onnx")]) == 0
+    )
+    onnx = Segmenter(tmp_path / "h.onnx").probabilities(load_folder(images, masks).images[:1])
+    reference = Segmenter(tmp_path / "b" / "last.pt", backend="torch").probabilities(
+        load_folder(images, masks).images[:1]
+    )
+    assert np.abs(onnx - reference).max() < 1e-4
+
+
 def test_finetune_starts_from_the_shipped_m_ost_by_default(tmp_path: Path, make_folder) -> None:
     folder = make_folder(tmp_path / "data", 2, seed=4)
     args = ["finetune", "--images", str(folder / "images"), "--masks", str(folder / "masks")]
