@@ -16,18 +16,18 @@ with its activation is one layer, a pooling is one layer), our extractor is exac
 ====  ==========================  ====  ==========================
 
 Everything after it (the second bottleneck convolution, four up-sampling stages with skip
-connections and the 1x1 classifier) is the part that fine-tuning trains.
+connections and the 1x1 classifier) is the part that fine-tuning trains. A "conv" is
+Conv2d + BatchNorm2d + ReLU; when the extractor is frozen its batch-norm statistics are frozen
+too (:meth:`SutureUNet.freeze_feature_extractor`).
 
-**Half-resolution variant** (``half_resolution=True``, the shipped ``m_onsite_half``). About 70 % of
-the full-resolution model's CPU time goes to the five layers that run at full resolution. This
-variant moves them to half resolution without losing a pixel: layer 1 folds each 2x2 block of
-pixels into 12 channels (``pixel_unshuffle``), layers 2 and 3 are 3x3 convolutions of C1
+**Half-resolution variant** (``half_resolution=True``, the shipped ``m_onsite_half``). About 70 %
+of the full-resolution model's CPU time goes to the five layers that run at full resolution.
+This variant moves them to half resolution without losing a pixel: layer 1 folds each 2x2 block
+of pixels into 12 channels (``pixel_unshuffle``), layers 2 and 3 are 3x3 convolutions of C1
 channels at half resolution (no pooling), and the last decoder stage, also at half resolution,
 ends in a classifier of 2x4 channels that ``pixel_shuffle`` unfolds into (2, H, W) logits. The
 layers from 4 on are the table's, one level coarser. C1 is wider (24 against 8: the fine level
-carries four pixels per position) and the run takes about half the time. A "conv" is
-Conv2d + BatchNorm2d + ReLU; when the extractor is frozen its batch-norm statistics are frozen
-too (:meth:`SutureUNet.freeze_feature_extractor`).
+carries four pixels per position), and the network runs in about half the time.
 
 The widths are small (default C1..C5 = 8, 16, 32, 48, 64) so that a 640x480 stereo pair runs
 fast on two CPU cores with ONNX Runtime. Input: (B, 3, H, W) float32 RGB scaled to [0, 1] with
