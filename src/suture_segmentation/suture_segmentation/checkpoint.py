@@ -42,7 +42,7 @@ SHIPPED = {
     "m_onsite": WEIGHTS_DIR / "m_onsite.pt",
     "m_onsite_int8": WEIGHTS_DIR / "m_onsite_int8.onnx",
     # m_onsite's half-resolution variant (model.py), trained on the same 800 images: as good on
-    # site, about half the run time. The on-site default.
+    # site, about 0.6 of the time per pair. The on-site default.
     "m_onsite_half": WEIGHTS_DIR / "m_onsite_half.pt",
     "m_onsite_half_int8": WEIGHTS_DIR / "m_onsite_half_int8.onnx",
 }

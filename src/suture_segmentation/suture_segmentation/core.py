@@ -35,7 +35,7 @@ BACKENDS = ("onnx", "torch")
 #: mask and move the centrelines traced on them.
 LOW_THRESHOLD = 0.3
 #: The shipped on-site model that ``weights=None`` loads on ONNX Runtime on the CPU: its int8 export,
-#: twice as fast as the float model, so that the default flip averaging keeps its cost.
+#: faster than the float model on CPUs with int8 dot-product instructions (quantize.py).
 DEFAULT_CPU_WEIGHTS = "m_onsite_half_int8"
 
 
@@ -57,8 +57,8 @@ class Segmenter:
         (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_onsite_half"``/
         ``"m_onsite"``/``"m_tosot"``/``"m_general"`` (or their int8 ONNX exports, ``"m_ost_int8"``
         ...) for a shipped model, or None for the shipped on-site model ``m_onsite_half``: its
-        int8 export with the ONNX backend on
-        the CPU (``suture-seg bench`` times it on yours), the float model otherwise.
+        int8 export with the ONNX backend on the CPU (``suture-seg bench`` times it on yours),
+        the float model otherwise.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
     device : str

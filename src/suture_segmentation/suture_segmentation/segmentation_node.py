@@ -22,7 +22,7 @@ with the onnx backend on the CPU, ``m_onsite_half.pt`` otherwise; "m_ost"/"m_ons
 ONNX export (backend onnx); anything else is a ``.pt`` checkpoint or an ``.onnx`` file.
 ``m_ost`` is the legacy camera's model, ``m_tosot`` the paper's transfer to the on-site camera
 from 40 labelled images, ``m_onsite`` the same camera's model from 800, and ``m_onsite_half`` its
-half-resolution variant (as accurate, half the run time); ``m_general`` (trained on
+half-resolution variant (as accurate, about 0.6 of the time per pair); ``m_general`` (trained on
 domain-randomised frames) is meant for a camera that none of the models has seen.
 
 Weights that cannot be loaded (missing, corrupt, not a suture U-Net) stop the node at
