@@ -75,13 +75,6 @@ def add_training_options(parser: argparse.ArgumentParser, epochs: int) -> None:
         "crossings); part of the crops on the thread",
     )
     parser.add_argument(
-        "--faint-crops",
-        type=float,
-        default=defaults.faint_crops,
-        help="fraction of training crops centred on the thread's faintest stretches (over a "
-        "highlight or an instrument, pale on pale tissue); part of the crops on the thread",
-    )
-    parser.add_argument(
         "--photometric",
         action="store_true",
         help="vary colour, exposure, contrast, tone, focus and noise of the training crops",
@@ -186,7 +179,6 @@ def training_config(args: argparse.Namespace):  # -> TrainConfig
         loss=args.loss,
         skeleton_weight=args.skeleton_weight,
         structure_crops=args.structure_crops,
-        faint_crops=args.faint_crops,
         photometric=args.photometric,
         augment=args.augment,
         all_layers=args.all_layers,

@@ -122,10 +122,6 @@ class CropSampler:
             (:func:`structure_points`: the cut tip with its hook or loop, crossings,
             self-intersections), where the ordering depends on a few pixels of the mask and a
             crop on a random thread pixel seldom lands; taken from the ``on_thread`` share.
-        faint: fraction of crops centred on the faintest stretches of the thread
-            (:func:`faint_points`: over a highlight, across an instrument, pale on pale tissue),
-            where a gap in the mask makes the ordering bridge and the 3D stage refuse a grasp
-            point it cannot see; also taken from the ``on_thread`` share.
     """
 
     def __init__(
@@ -136,20 +132,15 @@ class CropSampler:
         rng: np.random.Generator,
         photometric: bool = False,
         structure: float = 0.0,
-        faint: float = 0.0,
     ) -> None:
         if len(data) == 0:
             raise DatasetError("no training images")
-        if min(structure, faint) < 0.0 or structure + faint > on_thread:
-            raise ValueError(
-                f"structure ({structure}) and faint ({faint}) must be at least 0 and add up to at most "
-                f"on_thread={on_thread}"
-            )
+        if not 0.0 <= structure <= on_thread:
+            raise ValueError(f"structure must be in [0, on_thread={on_thread}], got {structure}")
         self.data, self.crop, self.on_thread, self.rng = data, crop, on_thread, rng
-        self.photometric, self.structure, self.faint = photometric, structure, faint
+        self.photometric, self.structure = photometric, structure
         self._suture_pixels = [np.flatnonzero(m) for m in data.masks]
         self._structure_pixels: dict[int, np.ndarray] = {}
-        self._faint_pixels: dict[int, np.ndarray] = {}
 
     def batch(self, size: int) -> tuple[np.ndarray, np.ndarray]:
         """(size, 3, crop, crop) float32 images in [0, 1] and (size, crop, crop) int64 labels."""
@@ -172,10 +163,6 @@ class CropSampler:
             if i not in self._structure_pixels:
                 self._structure_pixels[i] = structure_points(mask)
             pixels, jitter = self._structure_pixels[i], half // 4
-        elif draw < self.structure + self.faint:
-            if i not in self._faint_pixels:
-                self._faint_pixels[i] = faint_points(image, mask)
-            pixels, jitter = self._faint_pixels[i], half // 4
         if pixels.size and draw < self.on_thread:
             centre = int(pixels[self.rng.integers(pixels.size)])
             cy, cx = divmod(centre, width)
@@ -217,50 +204,6 @@ def structure_points(mask: np.ndarray) -> np.ndarray:
     )
     core = skeleton[1:-1, 1:-1]
     return np.flatnonzero(core & (runs != 2))
-
-
-#: Share of an image's thread pixels that :func:`faint_points` takes: the least contrasted ones.
-FAINT_SHARE = 0.2
-#: The tissue around the thread that :func:`faint_points` compares it with: pixels beyond
-#: this distance (px) from the mask and within :data:`FAINT_RING_OUTER_PX`.
-FAINT_RING_INNER_PX = 2
-FAINT_RING_OUTER_PX = 5
-#: Side (px) of the box over which the ring's colour is averaged for each thread pixel.
-FAINT_BOX_PX = 15
-
-
-def faint_points(image: np.ndarray, mask: np.ndarray, share: float = FAINT_SHARE) -> np.ndarray:
-    """Flat indices into ``mask`` ((H, W) bool) of the thread pixels least set off from their
-    surroundings in ``image`` ((H, W, 3) uint8 RGB).
-
-    Each thread pixel's contrast is its colour distance (RGB, 0-255 units) to the mean colour of
-    the ring of pixels :data:`FAINT_RING_INNER_PX` to :data:`FAINT_RING_OUTER_PX` px from the
-    mask within a :data:`FAINT_BOX_PX` box around it (what lies beside the thread there: tissue,
-    a highlight, an instrument). Returns the ``share`` of the thread pixels with the lowest
-    contrast (pixels with no ring pixel in their box are left out); empty without thread.
-    """
-    mask = np.asarray(mask, dtype=bool)
-    if not mask.any():
-        return np.empty(0, dtype=np.int64)
-    thread = mask.astype(np.uint8)
-
-    def dilated(radius: int) -> np.ndarray:
-        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-        return cv2.dilate(thread, disc) > 0
-
-    ring = (dilated(FAINT_RING_OUTER_PX) & ~dilated(FAINT_RING_INNER_PX)).astype(np.float32)
-    colour = (
-        image.astype(np.float32) if image.ndim == 3 else np.repeat(image[..., None], 3, 2).astype(np.float32)
-    )
-    box = (FAINT_BOX_PX, FAINT_BOX_PX)
-    weight = cv2.blur(ring, box)
-    surround = cv2.blur(colour * ring[..., None], box) / np.maximum(weight, 1e-6)[..., None]
-    indices = np.flatnonzero(mask & (weight > 0))
-    if indices.size == 0:
-        return indices
-    contrast = np.linalg.norm((colour - surround).reshape(-1, 3)[indices], axis=1)
-    keep = max(round(share * indices.size), 1)
-    return indices[np.argsort(contrast, kind="stable")[:keep]]
 
 
 def photometric_jitter(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -52,8 +52,6 @@ class TrainConfig:
         on_thread: fraction of crops centred on the thread.
         structure_crops: fraction of crops centred on the thread's ends and junctions (part of
             ``on_thread``; :class:`~suture_segmentation.data.CropSampler`).
-        faint_crops: fraction of crops centred on the thread's faintest stretches (part of
-            ``on_thread`` too; :func:`~suture_segmentation.data.faint_points`).
         photometric: vary the look of the crops (:func:`~suture_segmentation.data.photometric_jitter`).
         augment: warp and re-colour every batch with kornia
             (:func:`~suture_segmentation.augment.make_augmenter`), after ``photometric``.
@@ -72,7 +70,6 @@ class TrainConfig:
     skeleton_weight: float = SKELETON_WEIGHT
     on_thread: float = 0.7
     structure_crops: float = 0.0
-    faint_crops: float = 0.0
     photometric: bool = False
     augment: bool = False
     all_layers: bool = False
@@ -87,11 +84,6 @@ class TrainConfig:
         if not 0.0 <= self.structure_crops <= self.on_thread:
             raise ValueError(
                 f"structure crops must be in [0, on_thread={self.on_thread}], got {self.structure_crops}"
-            )
-        if self.faint_crops < 0.0 or self.structure_crops + self.faint_crops > self.on_thread:
-            raise ValueError(
-                f"faint crops must be at least 0 and, with the structure crops ({self.structure_crops}), "
-                f"at most on_thread={self.on_thread}, got {self.faint_crops}"
             )
         if self.crop % 16 or self.crop <= 0:
             raise ValueError(f"crop must be a positive multiple of 16, got {self.crop}")
@@ -183,7 +175,6 @@ def train(
         np.random.default_rng(config.seed),
         config.photometric,
         config.structure_crops,
-        config.faint_crops,
     )
     augmenter = None
     if config.augment:

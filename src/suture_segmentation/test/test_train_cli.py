@@ -245,7 +245,3 @@ def test_training_options_carry_the_structure_crops_within_the_crops_on_the_thre
     assert training_config(parser.parse_args([])).structure_crops == 0.0
     with pytest.raises(ValueError, match="structure crops"):
         TrainConfig(structure_crops=0.8, on_thread=0.7)
-    assert training_config(parser.parse_args(["--faint-crops", "0.2"])).faint_crops == 0.2
-    assert training_config(parser.parse_args([])).faint_crops == 0.0
-    with pytest.raises(ValueError, match="faint crops"):
-        TrainConfig(structure_crops=0.35, faint_crops=0.4, on_thread=0.7)
