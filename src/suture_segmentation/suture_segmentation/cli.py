@@ -197,11 +197,30 @@ def _datasets(args: argparse.Namespace):  # -> tuple[LabelledImages, LabelledIma
     return training, validation
 
 
-def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
+def _model_to_train(args: argparse.Namespace, seed: int, meta: dict):  # -> SutureUNet
+    """The model ``suture-seg train`` starts from: ``--init``'s checkpoint (its tensors that fit
+    copied into a new half-resolution model with ``--half-resolution``; the new layers' initial
+    weights drawn with ``seed``), else a new model of ``--widths``. Records the start in ``meta``."""
     import torch
 
     from suture_segmentation.checkpoint import copy_fitting_tensors, load_checkpoint
     from suture_segmentation.model import DEFAULT_WIDTHS, HALF_RESOLUTION_WIDTHS, SutureUNet
+
+    if not args.init:
+        default = HALF_RESOLUTION_WIDTHS if args.half_resolution else DEFAULT_WIDTHS
+        widths = [int(w) for w in args.widths.split(",")] if args.widths else default
+        return SutureUNet(widths, args.half_resolution)
+    model, source = load_checkpoint(args.init, args.device)
+    meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
+    if not args.half_resolution or model.half_resolution:
+        return model
+    torch.manual_seed(seed)
+    half = SutureUNet((HALF_RESOLUTION_WIDTHS[0], *model.widths[1:]), half_resolution=True)
+    meta["initialised_from"]["tensors_copied"] = copy_fitting_tensors(model, half)
+    return half
+
+
+def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
     from suture_segmentation.train import finetune, train
 
     config = training_config(args)
@@ -209,18 +228,7 @@ def _run_training(args: argparse.Namespace, argv: list[str]) -> int:
     meta = {"command": "suture-seg " + shlex.join(argv)}
     progress = not args.quiet
     if args.command == "train":
-        if args.init:
-            model, source = load_checkpoint(args.init, args.device)
-            meta["initialised_from"] = {"weights": str(args.init), "command": source.get("command")}
-            if args.half_resolution and not model.half_resolution:
-                torch.manual_seed(config.seed)  # the new layers' initial weights
-                source_model, model = model, SutureUNet((HALF_RESOLUTION_WIDTHS[0], *model.widths[1:]), True)
-                meta["initialised_from"]["tensors_copied"] = copy_fitting_tensors(source_model, model)
-        elif args.widths:
-            model = SutureUNet([int(w) for w in args.widths.split(",")], args.half_resolution)
-        else:
-            widths = HALF_RESOLUTION_WIDTHS if args.half_resolution else DEFAULT_WIDTHS
-            model = SutureUNet(widths, args.half_resolution)
+        model = _model_to_train(args, config.seed, meta)
         best = train(model, training, validation, config, args.out, meta, args.device, progress)
     else:
         best = finetune(args.weights, training, validation, config, args.out, meta, args.device, progress)

@@ -43,10 +43,12 @@ import torch
 from torch import nn
 from torch.nn import functional
 
+#: A model's input sizes must be multiples of its ``stride``: 16 for the full-resolution model
+#: (four poolings), 32 for the half-resolution one (the fold and four poolings).
+FULL_RESOLUTION_STRIDE, HALF_RESOLUTION_STRIDE = 16, 32
 #: Inference pads every image to multiples of this (:func:`pad_to_multiple`), which serves both
-#: variants: a model's input sizes must be multiples of its ``stride``, 16 for the full-resolution
-#: model (four poolings) and 32 for the half-resolution one (the fold and four poolings).
-STRIDE = 32
+#: variants.
+STRIDE = HALF_RESOLUTION_STRIDE
 
 #: Default channel widths C1..C5 of the five resolution levels.
 DEFAULT_WIDTHS: tuple[int, ...] = (8, 16, 32, 48, 64)
@@ -133,7 +135,7 @@ class SutureUNet(nn.Module):
             raise ValueError(f"widths must be five positive channel counts, got {tuple(widths)}")
         self.widths = tuple(int(w) for w in widths)
         self.half_resolution = bool(half_resolution)
-        self.stride = 32 if self.half_resolution else 16
+        self.stride = HALF_RESOLUTION_STRIDE if self.half_resolution else FULL_RESOLUTION_STRIDE
         c1, c2, c3, c4, c5 = self.widths
         self.feature_extractor = FeatureExtractor(self.widths, self.half_resolution)
         self.bottleneck = _conv(c5, c5)

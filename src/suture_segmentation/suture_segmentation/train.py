@@ -30,7 +30,7 @@ from tqdm import tqdm
 from suture_segmentation.checkpoint import load_checkpoint, save_checkpoint
 from suture_segmentation.data import CropSampler, LabelledImages
 from suture_segmentation.metrics import mean_scores, score_mask
-from suture_segmentation.model import SUTURE, SutureUNet, suture_probability
+from suture_segmentation.model import FULL_RESOLUTION_STRIDE, SUTURE, SutureUNet, suture_probability
 
 LOSSES = ("ce", "ce_dice", "ce_skeleton")
 SKELETON_WEIGHT = 0.1
@@ -85,8 +85,8 @@ class TrainConfig:
             raise ValueError(
                 f"structure crops must be in [0, on_thread={self.on_thread}], got {self.structure_crops}"
             )
-        if self.crop % 16 or self.crop <= 0:
-            raise ValueError(f"crop must be a positive multiple of 16, got {self.crop}")
+        if self.crop % FULL_RESOLUTION_STRIDE or self.crop <= 0:
+            raise ValueError(f"crop must be a positive multiple of {FULL_RESOLUTION_STRIDE}, got {self.crop}")
         if min(self.epochs, self.steps_per_epoch, self.batch_size) < 1:
             raise ValueError("epochs, steps per epoch and batch size must be at least 1")
 
