@@ -578,6 +578,7 @@ def _order_pair(
                 sign,
                 (d_min, d_max),
                 max_gap=params.stereo_fill_max_gap_px * prepared.scaled.scale,
+                guide_not_seen=guide.bridged,
             )
         sequences.append(sequence)
         filled.append(added)

@@ -291,7 +291,8 @@ class OrderingParams:
         default=60.0,
         metadata=described(
             "a view whose search stops at a gap the other view does not have is continued along the "
-            "other view across gaps of up to this many px (suture_ordering.stereo_fill); 0: off",
+            "other view across gaps of up to this many px, not counting a stretch the other view "
+            "bridged where this view's mask is missing too (suture_ordering.stereo_fill); 0: off",
             (0.0, 640.0),
         ),
     )

@@ -26,7 +26,12 @@ before them if the hook's rows bias it), and that path must run on the same way
 It does follow a gap the other view bridged: in most gaps of predicted masks
 both views lose the thread at the same place and only one view's search
 bridges it. Where the other view bridged to the wrong strand, the result follows
-that strand too.
+that strand too. A stretch the other view bridged counts towards ``max_gap``
+only where this view's mask shows some of it (more than
+``SHARED_GAP_MAX_SUPPORT``) or this view's gap begins well before it: an
+instrument shaft hides 5-25 mm of thread in both views, often more than
+``max_gap``, and the other view's bridge has passed the checks of a bridge
+across an occluder (:mod:`suture_ordering.occluders`).
 
 :func:`splice_skipped_stretch` mends the other way one view's search can go
 wrong where the other's did not: at its own crossing a thread runs straight on
@@ -163,6 +168,7 @@ def continue_from_other_view(
     max_gap: float = 60.0,
     min_resume: int = 10,
     min_angle: float = np.radians(10.0),
+    guide_not_seen: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """``own`` continued along ``guide``, the other view's sequence, and the number of points added.
 
@@ -183,11 +189,16 @@ def continue_from_other_view(
         A shifted point is kept where a mask run of its row lies within ``snap_radius`` px
         (see :func:`snap_to_mask_runs` for ``max_run``).
     max_gap : float
-        The walk ends after this many px of guide in a row without mask support.
+        The walk ends after this many px of guide in a row without mask support, not counting
+        the guide's own not-seen stretches (``guide_not_seen``).
     min_resume : int
         Supported points found after a gap count only as a run of at least this many.
     min_angle : float
         Rows crossing the guide flatter than this (rad) do not measure the disparity.
+    guide_not_seen : (M,) bool, optional
+        The guide's points that its view bridged across a gap (an occluder it crossed). This
+        view's mask has the same gap there, as wide as the occluder, which may be wider than
+        ``max_gap``; the other view's checks of the bridge stand for it.
 
     Returns
     -------
@@ -217,7 +228,18 @@ def continue_from_other_view(
                 break
         else:
             continue
-        kept = _follow(own_mask, guide[matched:], sign, disparity, snap_radius, max_run, max_gap, min_resume)
+        not_seen = np.zeros(len(guide), dtype=bool) if guide_not_seen is None else guide_not_seen
+        kept = _follow(
+            own_mask,
+            guide[matched:],
+            not_seen[matched:],
+            sign,
+            disparity,
+            snap_radius,
+            max_run,
+            max_gap,
+            min_resume,
+        )
         if len(kept) >= min_resume:
             return np.vstack([own[:end], kept]), len(kept)
     return own, 0
@@ -236,6 +258,7 @@ def _same_way(own: np.ndarray, end: int, guide: np.ndarray, matched: int, reach:
 def _follow(
     own_mask: np.ndarray,
     guide: np.ndarray,
+    guide_not_seen: np.ndarray,
     sign: float,
     disparity: float,
     snap_radius: float,
@@ -248,24 +271,35 @@ def _follow(
     steps = np.linalg.norm(np.diff(guide, axis=0), axis=1)
     followed = np.flatnonzero(steps > GUIDE_MAX_STEP_PX)
     ahead = guide[1 : 1 + (followed[0] if followed.size else len(steps))]
-    walked = np.cumsum(steps[: len(ahead)])
     if len(ahead) < min_resume:
         return np.empty((0, 2))
     shift = np.array([sign * disparity, 0.0])
     snapped = snap_to_mask_runs(own_mask, ahead - shift, snap_radius + 2.0, max_run)
+    walked = np.cumsum(steps[: len(ahead)])
+    shared = _shared_gaps(
+        guide_not_seen[1 : 1 + len(ahead)], np.abs(snapped - ahead[:, 0] + shift[0]) <= snap_radius
+    )
+    # Arc at which the shared gap holding each point begins (inf outside shared gaps).
+    edges = np.diff(np.concatenate([[0], shared.astype(np.int8), [0]]))
+    shared_from = np.full(len(ahead), np.inf)
+    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        shared_from[start:stop] = walked[start]
 
     kept: list[tuple[float, float]] = []
     run: list[tuple[float, float]] = []
     gap_start = None
+    exempt = 0.0  # px of the current gap that lie in a shared gap it ran into
     for k in range(len(ahead)):  # one pass along the guide, following the disparity
         column = ahead[k, 0] - sign * disparity
         if np.isnan(snapped[k]) or abs(snapped[k] - column) > snap_radius:
             if gap_start is None:
-                gap_start = walked[k]
+                gap_start, exempt = walked[k], 0.0
                 if len(run) >= min_resume or not kept:
                     kept.extend(run)
                 run = []
-            if walked[k] - gap_start > max_gap:
+            elif shared_from[k] - gap_start <= SHARED_GAP_LEAD * max_gap:
+                exempt += steps[k]
+            if walked[k] - gap_start - exempt > max_gap:
                 break
             continue
         gap_start = None
@@ -274,6 +308,28 @@ def _follow(
     if len(run) >= min_resume:
         kept.extend(run)
     return np.array(kept).reshape(-1, 2)
+
+
+#: Largest share of a stretch the other view bridged that this view's mask may show for the gap
+#: to count as one both views have (an occluder); more, and the other view bridged a faint
+#: stretch that this view partly sees.
+SHARED_GAP_MAX_SUPPORT = 0.1
+#: This view's gap must begin at most this fraction of ``max_gap`` before the other view's
+#: bridged stretch does for the two to be the same gap (a shaft's edge lies a few px apart in
+#: the two views: it is nearer than the thread, so its disparity is larger).
+SHARED_GAP_LEAD = 1.0 / 3.0
+
+
+def _shared_gaps(guide_not_seen: np.ndarray, supported: np.ndarray) -> np.ndarray:
+    """(K,) bool: the guide's not-seen stretches (``guide_not_seen``, (K,) bool) where this view's
+    mask is missing too (at most ``SHARED_GAP_MAX_SUPPORT`` of ``supported``, (K,) bool, the
+    points it shows): the gap both views have, which does not count against ``max_gap``."""
+    shared = guide_not_seen.copy()
+    edges = np.diff(np.concatenate([[0], guide_not_seen.astype(np.int8), [0]]))
+    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if supported[start:stop].mean() > SHARED_GAP_MAX_SUPPORT:
+            shared[start:stop] = False
+    return shared
 
 
 def splice_skipped_stretch(

@@ -30,7 +30,7 @@ from suture_ordering import (
 )
 from suture_ordering.cleaning import fill_holes_remove_specks
 from suture_ordering.core import _tip_arcs
-from suture_ordering.stereo_fill import splice_skipped_stretch
+from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
 from suture_ordering.tip import right_tip_across_gap, tip_across_gap, tip_from_hint
 
 W, H = 640, 480
@@ -415,6 +415,26 @@ def test_the_other_view_is_followed_only_across_gaps_up_to_the_limit():
     params = OrderingParams(occluder_reach_px=0.0)  # the search alone stops at the gap
     result = order_stereo(left, right, truth_left[0], camera, params)  # default limit: 60 px
     assert result.filled == (0, 0) and result.right[-1, 1] < 202
+
+
+def test_a_gap_the_other_view_bridged_is_followed_however_wide_it_is():
+    # A shaft hides rows 200-290 in both views; the left view's search bridged it (its points
+    # there flagged not seen), the right view's stopped. The right mask's gap, 90 px, is wider
+    # than the fill's limit, which counts only the left view's seen thread.
+    truth_left = line((250, 60), (330, 430))
+    hidden = (truth_left[:, 1] > 200) & (truth_left[:, 1] < 290)
+    truth_right = truth_left - [30.0, 0.0]
+    right = draw([truth_right[truth_right[:, 1] <= 200], truth_right[truth_right[:, 1] >= 290]])
+    own = truth_right[truth_right[:, 1] <= 199]
+    args = (own, right, truth_left, 1.0, (5.0, 200.0))
+    unflagged, added = continue_from_other_view(*args, max_gap=60.0)
+    assert added == 0 and len(unflagged) == len(own)
+    sequence, added = continue_from_other_view(*args, max_gap=60.0, guide_not_seen=hidden)
+    assert added > 100 and sequence[-1, 1] > 420
+    beyond = sequence[len(own) :]
+    assert not np.any((beyond[:, 1] > 203) & (beyond[:, 1] < 287)), "a point made up under the shaft"
+    true_u = np.interp(beyond[:, 1], truth_right[:, 1], truth_right[:, 0])
+    assert np.max(np.abs(beyond[:, 0] - true_u)) <= 1.0  # the centres of the right mask's runs
 
 
 def test_the_other_view_adds_nothing_this_views_mask_does_not_show():
