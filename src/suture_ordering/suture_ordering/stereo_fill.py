@@ -60,6 +60,14 @@ DISPARITY_FOLLOW = 0.2
 #: view's path: a search that stops at a gap often ends in a short hook (its last steps bent by
 #: the mask's ragged end), several px off that path.
 HOOK_SAMPLES = 12
+#: Largest share of a stretch the other view bridged that this view's mask may show for the gap
+#: to count as one both views have (an occluder); more, and the other view bridged a faint
+#: stretch that this view partly sees.
+SHARED_GAP_MAX_SUPPORT = 0.1
+#: This view's gap must begin at most this fraction of ``max_gap`` before the other view's
+#: bridged stretch does for the two to be the same gap (a shaft's edge lies a few px apart in
+#: the two views: it is nearer than the thread, so its disparity is larger).
+SHARED_GAP_LEAD = 1.0 / 3.0
 
 
 def arc_length(points: np.ndarray) -> np.ndarray:
@@ -190,15 +198,17 @@ def continue_from_other_view(
         (see :func:`snap_to_mask_runs` for ``max_run``).
     max_gap : float
         The walk ends after this many px of guide in a row without mask support, not counting
-        the guide's own not-seen stretches (``guide_not_seen``).
+        a gap both views have (see ``guide_not_seen``).
     min_resume : int
         Supported points found after a gap count only as a run of at least this many.
     min_angle : float
         Rows crossing the guide flatter than this (rad) do not measure the disparity.
     guide_not_seen : (M,) bool, optional
-        The guide's points that its view bridged across a gap (an occluder it crossed). This
-        view's mask has the same gap there, as wide as the occluder, which may be wider than
-        ``max_gap``; the other view's checks of the bridge stand for it.
+        The guide's points that its view bridged across a gap (an occluder it crossed). Such a
+        stretch does not count towards ``max_gap`` where this view's mask shows at most
+        ``SHARED_GAP_MAX_SUPPORT`` of it and this view's gap began at most ``SHARED_GAP_LEAD``
+        x ``max_gap`` px before it: both views lose the thread at the same occluder, which may
+        be wider than ``max_gap``, and the other view's checks of the bridge stand for this one.
 
     Returns
     -------
@@ -276,14 +286,13 @@ def _follow(
     shift = np.array([sign * disparity, 0.0])
     snapped = snap_to_mask_runs(own_mask, ahead - shift, snap_radius + 2.0, max_run)
     walked = np.cumsum(steps[: len(ahead)])
-    shared = _shared_gaps(
-        guide_not_seen[1 : 1 + len(ahead)], np.abs(snapped - ahead[:, 0] + shift[0]) <= snap_radius
-    )
-    # Arc at which the shared gap holding each point begins (inf outside shared gaps).
-    edges = np.diff(np.concatenate([[0], shared.astype(np.int8), [0]]))
+    # Where a shared gap (a stretch the guide bridged, this view's mask missing there too)
+    # begins, for each of its points (inf elsewhere).
     shared_from = np.full(len(ahead), np.inf)
-    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
-        shared_from[start:stop] = walked[start]
+    supported = np.abs(snapped - ahead[:, 0] + shift[0]) <= snap_radius
+    for start, stop in _runs(guide_not_seen[1 : 1 + len(ahead)]):
+        if supported[start:stop].mean() <= SHARED_GAP_MAX_SUPPORT:
+            shared_from[start:stop] = walked[start]
 
     kept: list[tuple[float, float]] = []
     run: list[tuple[float, float]] = []
@@ -310,26 +319,10 @@ def _follow(
     return np.array(kept).reshape(-1, 2)
 
 
-#: Largest share of a stretch the other view bridged that this view's mask may show for the gap
-#: to count as one both views have (an occluder); more, and the other view bridged a faint
-#: stretch that this view partly sees.
-SHARED_GAP_MAX_SUPPORT = 0.1
-#: This view's gap must begin at most this fraction of ``max_gap`` before the other view's
-#: bridged stretch does for the two to be the same gap (a shaft's edge lies a few px apart in
-#: the two views: it is nearer than the thread, so its disparity is larger).
-SHARED_GAP_LEAD = 1.0 / 3.0
-
-
-def _shared_gaps(guide_not_seen: np.ndarray, supported: np.ndarray) -> np.ndarray:
-    """(K,) bool: the guide's not-seen stretches (``guide_not_seen``, (K,) bool) where this view's
-    mask is missing too (at most ``SHARED_GAP_MAX_SUPPORT`` of ``supported``, (K,) bool, the
-    points it shows): the gap both views have, which does not count against ``max_gap``."""
-    shared = guide_not_seen.copy()
-    edges = np.diff(np.concatenate([[0], guide_not_seen.astype(np.int8), [0]]))
-    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
-        if supported[start:stop].mean() > SHARED_GAP_MAX_SUPPORT:
-            shared[start:stop] = False
-    return shared
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of True in the (K,) bool ``flags``."""
+    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
 
 
 def splice_skipped_stretch(
