@@ -12,6 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 
+def flagged_runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of True in the (K,) bool ``flags``, in order."""
+    edges = np.diff(np.concatenate(([0], np.asarray(flags, dtype=np.int8), [0])))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
+
+
 def flagged_sequence(
     sequence: np.ndarray, points: np.ndarray, bridged: np.ndarray, mask: np.ndarray | None = None
 ) -> np.ndarray:
@@ -32,10 +38,8 @@ def flagged_sequence(
     if not bridged.any() or len(sequence) < 2:
         return flagged
     not_seen = bridged.astype(np.float64)
-    change = np.diff(np.concatenate(([0], bridged.astype(np.int8), [0])))
-    starts, stops = np.flatnonzero(change == 1), np.flatnonzero(change == -1)
     pieces, taken = [], 0
-    for start, stop in zip(starts, stops, strict=True):  # one per gap: few
+    for start, stop in flagged_runs(bridged):  # one per gap: few
         if stop >= len(points):
             continue
         if start == 0:  # a cut end the mask lost, in front of the first point seen
@@ -87,7 +91,6 @@ def seen_in_low_mask(sequence: np.ndarray, low_mask: np.ndarray) -> np.ndarray:
     if not not_seen.any():
         return flagged
     low_mask = np.asarray(low_mask)
-    change = np.diff(np.concatenate(([0], not_seen.astype(np.int8), [0])))
-    for start, stop in zip(np.flatnonzero(change == 1), np.flatnonzero(change == -1), strict=True):
+    for start, stop in flagged_runs(not_seen):
         flagged[start:stop, 2] = _off_mask_between_ends(flagged[start:stop, :2], low_mask)
     return flagged

@@ -48,6 +48,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from suture_ordering.not_seen import flagged_runs
+
 #: Longest step (px) of the guiding sequence that counts as following the thread (searches
 #: sample the centreline about 1 px apart; a longer step jumps over an unseen stretch).
 GUIDE_MAX_STEP_PX = 3.0
@@ -290,7 +292,7 @@ def _follow(
     # begins, for each of its points (inf elsewhere).
     shared_from = np.full(len(ahead), np.inf)
     supported = np.abs(snapped - ahead[:, 0] + shift[0]) <= snap_radius
-    for start, stop in _runs(guide_not_seen[1 : 1 + len(ahead)]):
+    for start, stop in flagged_runs(guide_not_seen[1 : 1 + len(ahead)]):
         if supported[start:stop].mean() <= SHARED_GAP_MAX_SUPPORT:
             shared_from[start:stop] = walked[start]
 
@@ -317,12 +319,6 @@ def _follow(
     if len(run) >= min_resume:
         kept.extend(run)
     return np.array(kept).reshape(-1, 2)
-
-
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) index pairs of the runs of True in the (K,) bool ``flags``."""
-    edges = np.diff(np.concatenate([[0], flags.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(), strict=True))
 
 
 def splice_skipped_stretch(
