@@ -225,8 +225,9 @@ def benchmark(
     threads: int | None = None,
     flip_average: bool = True,
 ) -> dict[str, Any]:
-    """Median and 95th-percentile milliseconds per stereo pair after warm-up (one batch: the two
-    views, and with ``flip_average`` their mirror images)."""
+    """Median and 95th-percentile milliseconds per stereo pair after warm-up: the masks and low
+    masks, as segmentation_node makes them (one batch: the two views, and with ``flip_average``
+    their mirror images)."""
     import torch
 
     segmenter = Segmenter(weights, backend=backend, device=device, threads=threads, flip_average=flip_average)
@@ -235,11 +236,11 @@ def benchmark(
     left = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
     right = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
     for _ in range(3):
-        segmenter.segment_pair(left, right)
+        segmenter.segment_pair_with_low(left, right)
     times = []
     for _ in range(pairs):
         start = time.perf_counter()
-        segmenter.segment_pair(left, right)
+        segmenter.segment_pair_with_low(left, right)
         if device.startswith("cuda") and backend == "torch":
             torch.cuda.synchronize()
         times.append(1000 * (time.perf_counter() - start))

@@ -8,9 +8,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from skimage.filters import apply_hysteresis_threshold
 
 from suture_segmentation.checkpoint import WeightsError, export_onnx, load_checkpoint
-from suture_segmentation.core import SegmentationInputError, Segmenter
+from suture_segmentation.core import SegmentationInputError, Segmenter, hysteresis_mask
 from suture_segmentation.data import (
     CropSampler,
     DatasetError,
@@ -170,6 +171,17 @@ def test_flip_average_is_the_mean_of_an_image_and_its_mirror_image(
     assert np.abs(plain.probabilities(mirrored)[..., ::-1] - plain.probabilities(images)).max() > 1e-3
     averaged_mirrored = Segmenter(random_checkpoint, backend=backend).probabilities(mirrored)
     assert np.abs(averaged_mirrored[..., ::-1] - averaged).max() < 1e-5
+
+
+@pytest.mark.parametrize("low, high", [(0.3, 0.5), (0.1, 0.9), (0.5, 0.5)])
+def test_hysteresis_mask_is_skimages_hysteresis(low: float, high: float) -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(5):  # smooth random fields: blobs and threads of every size, touching diagonally too
+        field = cv2.GaussianBlur(rng.random((60, 80)).astype(np.float32), (0, 0), rng.uniform(0.5, 3))
+        field = (field - field.min()) / (field.max() - field.min())
+        expected = apply_hysteresis_threshold(field, low, high)
+        assert 0 < expected.sum() < field.size
+        assert np.array_equal(hysteresis_mask(field, low, high), expected)
 
 
 def test_onnx_worker_threads_sleep_when_idle(random_checkpoint: Path) -> None:
