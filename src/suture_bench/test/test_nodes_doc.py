@@ -24,7 +24,7 @@ def test_every_parameter_has_a_description_and_every_number_a_range(descriptions
     counts = {d.entry.executable: len(d.parameters) for d in descriptions}
     assert counts == {
         "segmentation_node": 12,
-        "ordering_node": 44,
+        "ordering_node": 45,
         "reconstruction_node": 25,
         "executor_node": 32,
         "psm_sim_node": 9,

@@ -30,6 +30,7 @@ from suture_ordering.hooks import HOOK_WINDOW, HookStart, hook_after_search, hoo
 from suture_ordering.not_seen import flagged_sequence, seen_in_low_mask
 from suture_ordering.params import OrderingParams, ScaledParams
 from suture_ordering.search import Searcher
+from suture_ordering.skipped_loop import skipped_loop_index
 from suture_ordering.stereo_fill import arc_length, continue_from_other_view, splice_skipped_stretch
 from suture_ordering.strand_switch import strand_switch_index
 from suture_ordering.tip import (
@@ -104,7 +105,8 @@ class StereoOrdering:
     in this view's mask or round a loop this view's search cut across
     (:mod:`suture_ordering.stereo_fill`); 0 where none was needed. ``cut``: points cut from the
     end of ``left`` and ``right`` where the sequence turned off its thread onto a crossing strand
-    (:mod:`suture_ordering.strand_switch`); 0 where it did not. ``low_masks_used``: the
+    (:mod:`suture_ordering.strand_switch`) or passed by a loop its mask shows
+    (:mod:`suture_ordering.skipped_loop`); 0 where it did neither. ``low_masks_used``: the
     sequences are those of the low masks (:func:`order_stereo`).
     """
 
@@ -303,6 +305,9 @@ def order_stereo(
         A view whose search stopped where the other's went on is continued along the other
         view, and one that cut across a loop the other went round gets the loop back, on its
         own mask only (:mod:`suture_ordering.stereo_fill`; ``filled`` counts those points).
+        A view whose sequence turned onto a crossing strand, or passed by a loop that its mask
+        (low mask where given) shows beside it, is cut there (``cut``;
+        :mod:`suture_ordering.strand_switch`, :mod:`suture_ordering.skipped_loop`).
 
     Raises
     ------
@@ -347,16 +352,43 @@ def order_stereo(
                 view,
             )
     ordering = _masks_or_low_masks(left_mask, right_mask, tip_hint, camera, params, low_masks)
+    explained = low_masks if low_masks is not None else (left_mask, right_mask)
+    if params.skipped_loop_cut:
+        ordering = _cut_at_skipped_loops(ordering, explained, params.scale_for(camera.width))
     radius = params.tip_unexplained_radius_px * params.scale_for(camera.width)
     if radius > 0:
         max_pixels = params.tip_unexplained_max_px * params.scale_for(camera.width) ** 2
-        explained = low_masks if low_masks is not None else (left_mask, right_mask)
         scaled = _scaled_params(params, camera.width)
         sequences = (ordering.left, ordering.right)
         check_tip_explained(
             explained, sequences, radius, max_pixels, scaled.max_hole_area, scaled.min_eye_width
         )
     return ordering
+
+
+def _cut_at_skipped_loops(
+    ordering: StereoOrdering, masks: tuple[np.ndarray, np.ndarray], scale: float
+) -> StereoOrdering:
+    """``ordering`` with each view's sequence cut where it first passes by a loop or detour of
+    its mask (:func:`suture_ordering.skipped_loop.skipped_loop_index`), the points cut counted in
+    ``cut``."""
+    views = {
+        "left": (ordering.left, ordering.left_sequence),
+        "right": (ordering.right, ordering.right_sequence),
+    }
+    changes, cut = {}, list(ordering.cut)
+    for index, (mask, (view, (visible, published))) in enumerate(zip(masks, views.items(), strict=True)):
+        at = skipped_loop_index(mask, published[:, :2], scale)
+        if at is None:
+            continue
+        removed = {tuple(point) for point in published[at + 1 :, :2].tolist()}
+        kept = len(visible) - sum(tuple(point) in removed for point in visible.tolist())
+        changes[view] = visible[:kept]
+        changes[f"{view}_sequence"] = published[: at + 1]
+        cut[index] += len(visible) - kept
+    if not changes:
+        return ordering
+    return dataclasses.replace(ordering, cut=(cut[0], cut[1]), **changes)
 
 
 def _masks_or_low_masks(

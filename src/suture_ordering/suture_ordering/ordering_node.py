@@ -30,7 +30,9 @@ a throttled warning.
 A sequence that turns at a crossing onto the other strand, where mask straight on shows its own
 thread going on beyond a stretch the mask lost, is published cut at the crossing
 (``strand_switch_turn``, :mod:`suture_ordering.strand_switch`): the 3D stage then refuses a
-thread too short to grasp instead of grasping the other thread.
+thread too short to grasp instead of grasping the other thread. So is a sequence that passes by
+a loop the mask shows beside it, cut where the loop joins it (``skipped_loop_cut``,
+:mod:`suture_ordering.skipped_loop`): a grasp beyond would lie the loop's arc too far along.
 
 Parameters (read at start-up): :data:`PARAMETERS`, every field of
 :class:`suture_ordering.OrderingParams` under its own name (pixel lengths for a 640 px wide
@@ -184,7 +186,7 @@ class OrderingNode(Node):
         """Mask pairs dropped, by problem."""
         self._notes = ThrottledWarnings(self.get_logger(), WARN_PERIOD_S)  # published, with a caveat
         self.frames_cut = 0
-        """Mask pairs published with a sequence cut at a crossing (``StereoOrdering.cut``)."""
+        """Mask pairs published with a sequence cut (``StereoOrdering.cut``)."""
         self.frames_published = 0
         self._left_pub = self.create_publisher(PolygonStamped, LEFT_SEQUENCE, RELIABLE_QOS)
         self._right_pub = self.create_publisher(PolygonStamped, RIGHT_SEQUENCE, RELIABLE_QOS)
@@ -317,8 +319,9 @@ class OrderingNode(Node):
             self.frames_cut += 1
             self._notes.warn(
                 "strand_switch",
-                f"masks at {stamp_ns} ns: sequences cut at a crossing where they turned onto the other "
-                f"strand ({result.cut[0]} left, {result.cut[1]} right points; strand_switch_turn)",
+                f"masks at {stamp_ns} ns: sequences cut where they turned onto the other strand at a "
+                f"crossing or passed by a loop the mask shows ({result.cut[0]} left, {result.cut[1]} right "
+                "points; strand_switch_turn, skipped_loop_cut)",
             )
         for publisher, points, header in (
             (self._left_pub, result.left_sequence, left.header),

@@ -193,6 +193,14 @@ class OrderingParams:
             (0.0, math.pi),
         ),
     )
+    skipped_loop_cut: bool = field(
+        default=True,
+        metadata=described(
+            "where a sequence passes by a loop or detour that its mask (the low mask where given) "
+            "shows beside it, much longer than the sequence there, it is cut where it first joins "
+            "it, so that a grasp beyond is refused as on a thread too short (suture_ordering.skipped_loop)"
+        ),
+    )
     wide_arc_factor: float = field(
         default=1.6,
         metadata=described(

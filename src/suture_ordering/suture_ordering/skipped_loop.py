@@ -1,0 +1,127 @@
+# SPDX-License-Identifier: Apache-2.0
+"""Where a sequence passed by a loop that the mask shows.
+
+A thread that loops crosses itself. Where the segmenter breaks the loop next to its crossing (a
+faint stretch of a pale thread), the search arrives at the crossing, finds the thread straight on
+(the loop's way out) and goes on: the sequence passes the loop by. The grasp point is placed a
+fixed arc from the cut tip, so a grasp beyond the loop lands the loop's arc too far along the
+thread (25-40 mm on simulated loops); both views usually break the same loop, so the stereo pair
+does not tell.
+
+What tells is the loop itself, in the mask the ordering read (its low mask, where there is one):
+thread off the sequence's corridor (farther than the thread's half width plus
+:data:`CORRIDOR_MARGIN_PX` from it) that joins the corridor and is much longer than the part of
+the sequence it stands beside. Two shapes count:
+
+- a *detour*: mask joined to the corridor at two places along the sequence, at least
+  :data:`DETOUR_RATIO` times as long as the sequence's arc between them plus
+  :data:`DETOUR_EXTRA_PX`;
+- a *ring*: mask joined at one place and at least :data:`RING_LENGTH_RATIO` times as long as it
+  reaches away from the sequence, and not cut by the image border (another strand that crosses
+  the thread leaves it in a line: as long as it reaches).
+
+A piece's length is its area over the thread's width. :func:`skipped_loop_index` gives the
+sequence's index where the first such piece joins it; ``order_stereo`` cuts the view's sequence
+there (``StereoOrdering.cut``), so that the 3D stage refuses a grasp beyond it as on a thread too
+short, and keeps a grasp before it. Loops the segmenter lost whole leave nothing to see.
+
+Units: pixels (u, v); the lengths below are at 640 px image width and scale with it.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+#: Mask pixels farther than the thread's half width plus this (px) from the sequence are off it.
+CORRIDOR_MARGIN_PX = 1.5
+#: Where a piece's joins to the corridor lie more than this many thread widths (plus 4 px) of
+#: sequence apart, it joins it at two places.
+JOIN_GAP_WIDTHS = 1.5
+#: Pieces of mask off the corridor smaller than this (px² at 640 px width) are left alone.
+MIN_AREA_PX = 30.0
+#: A detour counts when it is at least this many times longer than the sequence beside it ...
+DETOUR_RATIO = 2.0
+#: ... plus this many px.
+DETOUR_EXTRA_PX = 12.0
+#: A ring counts when it is at least this long (px) ...
+RING_MIN_LENGTH_PX = 32.0
+#: ... and at least this many times as long as it reaches away from where it joins the sequence.
+RING_LENGTH_RATIO = 2.2
+
+
+def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.0) -> int | None:
+    """Index into ``sequence`` where it first passes by a loop or detour of ``mask``, or None.
+
+    ``mask``: (H, W) the mask the sequence was ordered on, nonzero = thread; ``sequence``:
+    (N, 2) float (u, v) from the cut tip, about 1 px apart; ``scale``: image width / 640.
+    """
+    points = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+    thread = (np.asarray(mask) > 0).astype(np.uint8)
+    if len(points) < 10:
+        return None
+    width = _thread_width(thread, points)
+    corridor = np.zeros_like(thread)
+    thickness = max(1, int(width + 2 * CORRIDOR_MARGIN_PX * scale))
+    cv2.polylines(
+        corridor,
+        [np.rint(points * 16).astype(np.int32).reshape(-1, 1, 2)],
+        False,
+        1,
+        thickness,
+        cv2.LINE_8,
+        4,
+    )
+    off = thread & (1 - corridor)
+    min_area = MIN_AREA_PX * scale**2
+    if np.count_nonzero(off) < min_area:
+        return None
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(off, connectivity=8)
+    large = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    if large.size == 0:
+        return None
+    touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
+    tree = cKDTree(points)
+    height, image_width = thread.shape
+    first: int | None = None
+    for label in large.tolist():
+        left, top, box_width, box_height, area = stats[label]
+        box = (slice(top, top + box_height), slice(left, left + box_width))
+        piece = labels[box] == label
+        rows, cols = np.nonzero(piece & touching[box])
+        if rows.size == 0:
+            continue
+        _, joined = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
+        joined = np.sort(joined)
+        length = area / width
+        # points about 1 px apart: index differences are px of sequence (a jump counts as one)
+        clusters = np.split(joined, np.flatnonzero(np.diff(joined) > JOIN_GAP_WIDTHS * width + 4 * scale) + 1)
+        if len(clusters) >= 2:
+            beside = clusters[-1][0] - clusters[0][-1]
+            if length < DETOUR_RATIO * beside + DETOUR_EXTRA_PX * scale:
+                continue
+        else:
+            at_border = (
+                left <= 1 or top <= 1 or left + box_width >= image_width - 1 or top + box_height >= height - 1
+            )
+            rows, cols = np.nonzero(piece)
+            pixels = np.column_stack((cols + left, rows + top)).astype(np.float64)
+            reach = float(cKDTree(points[clusters[0]]).query(pixels)[0].max())
+            if at_border or length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
+                continue
+        index = int(clusters[0][0])
+        first = index if first is None else min(first, index)
+    return first
+
+
+def _thread_width(thread: np.ndarray, points: np.ndarray) -> float:
+    """The thread's width (px): twice the median distance to the background at the sequence's
+    points (the 3x3 distance transform), at least 2 px."""
+    height, width = thread.shape
+    cells = np.rint(points).astype(int)
+    inside = (cells[:, 0] >= 0) & (cells[:, 0] < width) & (cells[:, 1] >= 0) & (cells[:, 1] < height)
+    if not inside.any():
+        return 2.0
+    depth = cv2.distanceTransform(thread, cv2.DIST_L2, 3)
+    return max(2.0, 2.0 * float(np.median(depth[cells[inside, 1], cells[inside, 0]])))

@@ -1,0 +1,97 @@
+# SPDX-License-Identifier: Apache-2.0
+"""A sequence that passes by a loop the mask shows (suture_ordering.skipped_loop): found where a
+ring or a detour of the mask joins the sequence, and the sequence cut there by the ordering; a
+crossing strand, thread beside the sequence that is no longer than it, and a strand that leaves
+the image are not."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from suture_common.camera import StereoCamera
+from suture_ordering import OrderingParams, order_stereo
+from suture_ordering.skipped_loop import skipped_loop_index
+
+W, H = 640, 480
+
+
+def _line(start: tuple[float, float], end: tuple[float, float]) -> np.ndarray:
+    """1 px samples from ``start`` to ``end``."""
+    length = math.hypot(end[0] - start[0], end[1] - start[1])
+    s = np.linspace(0.0, 1.0, round(length) + 1)[:, None]
+    return np.asarray(start) + s * (np.asarray(end) - np.asarray(start))
+
+
+def _draw(*polylines: np.ndarray, width: int = 3) -> np.ndarray:
+    mask = np.zeros((H, W), np.uint8)
+    for line in polylines:
+        cv2.polylines(mask, [np.rint(line).astype(np.int32)], False, 255, width)
+    return mask
+
+
+def _ring(centre: tuple[float, float], radius: float, start_deg: float, sweep_deg: float) -> np.ndarray:
+    angles = np.radians(start_deg + np.linspace(0.0, sweep_deg, round(abs(sweep_deg) * radius / 40) + 2))
+    return np.column_stack([centre[0] + radius * np.cos(angles), centre[1] + radius * np.sin(angles)])
+
+
+STRAIGHT = _line((100, 240), (560, 240))
+
+
+def test_a_ring_beside_the_sequence_is_found_where_it_joins() -> None:
+    """A loop of 20 px radius hanging below row 240 at u = 300, broken where it meets the thread
+    (the segmenter lost it there): the sequence along the row passes it by."""
+    ring = _ring((300, 262), 20, -70, 320)  # a gap of 40 degrees at its top, on the thread
+    index = skipped_loop_index(_draw(STRAIGHT, ring), STRAIGHT)
+    assert index is not None and abs(STRAIGHT[index, 0] - 300) <= 20  # within the ring's radius
+    assert skipped_loop_index(_draw(STRAIGHT), STRAIGHT) is None
+
+
+def test_a_detour_much_longer_than_the_sequence_beside_it_is_found() -> None:
+    """Mask leaving the row at u = 280 and coming back at u = 320 over a 60 px deep bulge."""
+    detour = np.vstack(
+        [_line((280, 244), (280, 300)), _line((280, 300), (320, 300)), _line((320, 300), (320, 244))]
+    )
+    index = skipped_loop_index(_draw(STRAIGHT, detour), STRAIGHT)
+    assert index is not None and abs(STRAIGHT[index, 0] - 280) <= 12
+    shallow = np.vstack(
+        [_line((280, 244), (300, 250)), _line((300, 250), (320, 244))]
+    )  # no longer than its chord
+    assert skipped_loop_index(_draw(STRAIGHT, shallow), STRAIGHT) is None
+
+
+def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
+    crossing = _line((200, 60), (400, 420))  # an X with another thread
+    assert skipped_loop_index(_draw(STRAIGHT, crossing), STRAIGHT) is None
+    touching = _line((300, 243), (300, 479))  # a strand that joins at a T and leaves the image
+    assert skipped_loop_index(_draw(STRAIGHT, touching), STRAIGHT) is None
+    wide = _draw(STRAIGHT, width=7)  # a thick thread: its rim lies in the corridor
+    assert skipped_loop_index(wide, STRAIGHT) is None
+
+
+def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by() -> None:
+    """A segmenter's masks of a simulated frame (fresh mixed set of seed 20261964, frame 482,
+    M-oST int8): the mask broke a pale loop 45 px across next to its crossing, the low mask kept
+    the rest of it, and both views' sequences went straight on past it. The grasp, 50 mm of arc
+    from the tip, lay 32 mm too far along the thread (24.8 mm off). Cut where the loop joins the
+    sequence, before the true grasp point's place: the 3D stage finds the thread too short."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_loop_passed_by.npz")
+    height, width = (int(n) for n in stored["shape"])
+    masks = [
+        np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
+        for view in ("left", "right", "left_low", "right_low")
+    ]
+    camera = StereoCamera.default(width, height)
+    arguments = (masks[0], masks[1], stored["hint"], camera)
+    off = order_stereo(*arguments, params=OrderingParams(skipped_loop_cut=False), low_masks=tuple(masks[2:]))
+    cut = order_stereo(*arguments, low_masks=tuple(masks[2:]))
+    assert off.cut == (0, 0) and min(cut.cut) > 100
+    truth = stored["truth_left"][:, :2].astype(float)
+    true_arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth, axis=0).T))])
+    distance = np.hypot(*(truth - cut.left[-1]).T)
+    assert distance.min() < 3 and true_arc[np.argmin(distance)] < 110  # on our thread, before the loop
+    assert np.hypot(*(off.left[-1] - truth[-1])).min() < 5  # without the cut: on past it to the end
+    assert len(off.left) - len(cut.left) == cut.cut[0]
