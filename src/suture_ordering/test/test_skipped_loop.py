@@ -6,7 +6,6 @@ the image are not."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import cv2
@@ -19,17 +18,10 @@ from suture_ordering.skipped_loop import skipped_loop_index
 W, H = 640, 480
 
 
-def _line(start: tuple[float, float], end: tuple[float, float]) -> np.ndarray:
-    """1 px samples from ``start`` to ``end``."""
-    length = math.hypot(end[0] - start[0], end[1] - start[1])
-    s = np.linspace(0.0, 1.0, round(length) + 1)[:, None]
-    return np.asarray(start) + s * (np.asarray(end) - np.asarray(start))
-
-
-def _draw(*polylines: np.ndarray, width: int = 3) -> np.ndarray:
+def _draw(*polylines: np.ndarray | list[tuple[float, float]], width: int = 3) -> np.ndarray:
+    """A (H, W) mask of the polylines (vertex lists), ``width`` px wide."""
     mask = np.zeros((H, W), np.uint8)
-    for line in polylines:
-        cv2.polylines(mask, [np.rint(line).astype(np.int32)], False, 255, width)
+    cv2.polylines(mask, [np.rint(np.asarray(line)).astype(np.int32) for line in polylines], False, 255, width)
     return mask
 
 
@@ -38,7 +30,7 @@ def _ring(centre: tuple[float, float], radius: float, start_deg: float, sweep_de
     return np.column_stack([centre[0] + radius * np.cos(angles), centre[1] + radius * np.sin(angles)])
 
 
-STRAIGHT = _line((100, 240), (560, 240))
+STRAIGHT = np.column_stack([np.arange(100.0, 561.0), np.full(461, 240.0)])  # 1 px apart
 
 
 def test_a_ring_beside_the_sequence_is_found_where_it_joins() -> None:
@@ -52,21 +44,17 @@ def test_a_ring_beside_the_sequence_is_found_where_it_joins() -> None:
 
 def test_a_detour_much_longer_than_the_sequence_beside_it_is_found() -> None:
     """Mask leaving the row at u = 280 and coming back at u = 320 over a 60 px deep bulge."""
-    detour = np.vstack(
-        [_line((280, 244), (280, 300)), _line((280, 300), (320, 300)), _line((320, 300), (320, 244))]
-    )
+    detour = [(280, 244), (280, 300), (320, 300), (320, 244)]
     index = skipped_loop_index(_draw(STRAIGHT, detour), STRAIGHT)
     assert index is not None and abs(STRAIGHT[index, 0] - 280) <= 12
-    shallow = np.vstack(
-        [_line((280, 244), (300, 250)), _line((300, 250), (320, 244))]
-    )  # no longer than its chord
+    shallow = [(280, 244), (300, 250), (320, 244)]  # no longer than its chord
     assert skipped_loop_index(_draw(STRAIGHT, shallow), STRAIGHT) is None
 
 
 def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
-    crossing = _line((200, 60), (400, 420))  # an X with another thread
+    crossing = [(200, 60), (400, 420)]  # an X with another thread
     assert skipped_loop_index(_draw(STRAIGHT, crossing), STRAIGHT) is None
-    touching = _line((300, 243), (300, 479))  # a strand that joins at a T and leaves the image
+    touching = [(300, 243), (300, 479)]  # a strand that joins at a T and leaves the image
     assert skipped_loop_index(_draw(STRAIGHT, touching), STRAIGHT) is None
     wide = _draw(STRAIGHT, width=7)  # a thick thread: its rim lies in the corridor
     assert skipped_loop_index(wide, STRAIGHT) is None
