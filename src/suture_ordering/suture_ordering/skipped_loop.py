@@ -39,6 +39,8 @@ CORRIDOR_MARGIN_PX = 1.5
 #: Where a piece's joins to the corridor lie more than this many thread widths (plus 4 px) of
 #: sequence apart, it joins it at two places.
 JOIN_GAP_WIDTHS = 1.5
+#: The thread is taken to be at least this wide (px).
+MIN_WIDTH_PX = 2.0
 #: Pieces of mask off the corridor smaller than this (px² at 640 px width) are left alone.
 MIN_AREA_PX = 30.0
 #: A detour counts when it is at least this many times longer than the sequence beside it ...
@@ -61,22 +63,13 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
     thread = (np.asarray(mask) > 0).astype(np.uint8)
     if len(points) < 10:
         return None
-    width = _thread_width(thread, points)
-    corridor = np.zeros_like(thread)
-    thickness = max(1, int(width + 2 * CORRIDOR_MARGIN_PX * scale))
-    cv2.polylines(
-        corridor,
-        [np.rint(points * 16).astype(np.int32).reshape(-1, 1, 2)],
-        False,
-        1,
-        thickness,
-        cv2.LINE_8,
-        4,
-    )
-    off = thread & (1 - corridor)
     min_area = MIN_AREA_PX * scale**2
-    if np.count_nonzero(off) < min_area:
+    # The corridor of the narrowest thread leaves the most mask off it: too little there, none.
+    if np.count_nonzero(thread & (1 - _corridor(thread.shape, points, MIN_WIDTH_PX, scale))) < min_area:
         return None
+    width = _thread_width(thread, points)
+    corridor = _corridor(thread.shape, points, width, scale)
+    off = thread & (1 - corridor)
     _, labels, stats, _ = cv2.connectedComponentsWithStats(off, connectivity=8)
     large = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
     if large.size == 0:
@@ -115,13 +108,22 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
     return first
 
 
+def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: float) -> np.ndarray:
+    """(H, W) uint8 1 within the corridor of ``points`` for a thread ``width`` px wide."""
+    corridor = np.zeros(shape, dtype=np.uint8)
+    thickness = max(1, int(width + 2 * CORRIDOR_MARGIN_PX * scale))
+    polyline = np.rint(points * 16).astype(np.int32).reshape(-1, 1, 2)
+    cv2.polylines(corridor, [polyline], False, 1, thickness, cv2.LINE_8, 4)
+    return corridor
+
+
 def _thread_width(thread: np.ndarray, points: np.ndarray) -> float:
     """The thread's width (px): twice the median distance to the background at the sequence's
-    points (the 3x3 distance transform), at least 2 px."""
+    points (the 3x3 distance transform), at least :data:`MIN_WIDTH_PX`."""
     height, width = thread.shape
     cells = np.rint(points).astype(int)
     inside = (cells[:, 0] >= 0) & (cells[:, 0] < width) & (cells[:, 1] >= 0) & (cells[:, 1] < height)
     if not inside.any():
-        return 2.0
+        return MIN_WIDTH_PX
     depth = cv2.distanceTransform(thread, cv2.DIST_L2, 3)
-    return max(2.0, 2.0 * float(np.median(depth[cells[inside, 1], cells[inside, 0]])))
+    return max(MIN_WIDTH_PX, 2.0 * float(np.median(depth[cells[inside, 1], cells[inside, 0]])))
