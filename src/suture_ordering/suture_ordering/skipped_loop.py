@@ -68,6 +68,8 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
     if np.count_nonzero(thread & (1 - _corridor(thread.shape, points, MIN_WIDTH_PX, scale))) < min_area:
         return None
     width = _thread_width(thread, points)
+    if width is None:  # no background around the sequence: no thread to tell a loop in
+        return None
     corridor = _corridor(thread.shape, points, width, scale)
     off = thread & (1 - corridor)
     _, labels, stats, _ = cv2.connectedComponentsWithStats(off, connectivity=8)
@@ -117,13 +119,16 @@ def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: f
     return corridor
 
 
-def _thread_width(thread: np.ndarray, points: np.ndarray) -> float:
+def _thread_width(thread: np.ndarray, points: np.ndarray) -> float | None:
     """The thread's width (px): twice the median distance to the background at the sequence's
-    points (the 3x3 distance transform), at least :data:`MIN_WIDTH_PX`."""
+    points (the 3x3 distance transform), at least :data:`MIN_WIDTH_PX`; None where the mask
+    has no background."""
     height, width = thread.shape
     cells = np.rint(points).astype(int)
     inside = (cells[:, 0] >= 0) & (cells[:, 0] < width) & (cells[:, 1] >= 0) & (cells[:, 1] < height)
     if not inside.any():
         return MIN_WIDTH_PX
+    if thread.all():
+        return None
     depth = cv2.distanceTransform(thread, cv2.DIST_L2, 3)
     return max(MIN_WIDTH_PX, 2.0 * float(np.median(depth[cells[inside, 1], cells[inside, 0]])))

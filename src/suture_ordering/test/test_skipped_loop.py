@@ -58,6 +58,7 @@ def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     assert skipped_loop_index(_draw(STRAIGHT, touching), STRAIGHT) is None
     wide = _draw(STRAIGHT, width=7)  # a thick thread: its rim lies in the corridor
     assert skipped_loop_index(wide, STRAIGHT) is None
+    assert skipped_loop_index(np.full((H, W), 255, np.uint8), STRAIGHT) is None  # a mask with no background
 
 
 def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by() -> None:
