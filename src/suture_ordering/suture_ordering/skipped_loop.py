@@ -5,7 +5,7 @@ A thread that loops crosses itself. Where the segmenter breaks the loop next to 
 faint stretch of a pale thread), the search arrives at the crossing, finds the thread straight on
 (the loop's way out) and goes on: the sequence passes the loop by. The grasp point is placed a
 fixed arc from the cut tip, so a grasp beyond the loop lands the loop's arc too far along the
-thread (25-40 mm on simulated loops); both views usually break the same loop, so the stereo pair
+thread (25-32 mm on the simulated loops looked at); both views usually break the same loop, so the stereo pair
 does not tell.
 
 What tells is the loop itself, in the mask the ordering read (its low mask, where there is one):
