@@ -19,7 +19,8 @@ None, with the reason in ``notes``):
   the masks alone. True masks have none.
 
 Definitions (docs/interfaces.md): IoU, precision, recall and F1 pooled over the pixels of
-all frames; ordering success per ``suture_bench.ordering_metrics``; reconstruction
+all frames; ordering success per ``suture_bench.ordering_metrics``, of the left view's sequence
+(``ordering``) and of the right view's (``ordering.right_view``); reconstruction
 error is the distance from each reconstructed path point to the true 3D
 centreline (mean over frames of the per-frame mean, max over frames of the
 per-frame max); grasp error is the 3D distance between predicted and true grasp
@@ -90,6 +91,7 @@ class _Tally:
     visibility: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     damaged: list[dict[str, Any]] = field(default_factory=list)
     ordering: dict[str, list[bool]] = field(default_factory=lambda: defaultdict(list))
+    ordering_right: dict[str, list[bool]] = field(default_factory=lambda: defaultdict(list))
     recon_mean: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     recon_max: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
     grasp: dict[str, list[float]] = field(default_factory=lambda: defaultdict(list))
@@ -269,13 +271,17 @@ class Scoreboard:
                 tally.unscored["ordering: the bag has no true sequence"] += 1
             else:
                 tally.visibility[frame.visibility] += 1
-                score = None
-                if outputs.sequences is not None:
-                    score = ordering_success(outputs.sequences[0], frame.true_left_sequence)
-                success = score is not None and bool(score.success)
-                tally.ordering[frame.topology].append(success)
-                record["ordering_success"] = success
-                record["ordering"] = "no sequence" if score is None else score.reason
+                views = [("", 0, frame.true_left_sequence, tally.ordering)]
+                if frame.true_right_sequence is not None:
+                    views.append(("_right", 1, frame.true_right_sequence, tally.ordering_right))
+                for suffix, view, truth, scores in views:
+                    score = None
+                    if outputs.sequences is not None:
+                        score = ordering_success(outputs.sequences[view], truth)
+                    success = score is not None and bool(score.success)
+                    scores[frame.topology].append(success)
+                    record[f"ordering{suffix}_success"] = success
+                    record[f"ordering{suffix}"] = "no sequence" if score is None else score.reason
         record["grasp_produced"] = outputs.path is not None and outputs.grasp is not None
         hidden = true_grasp_hidden(frame)
         if hidden is not None:
@@ -499,6 +505,10 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
         "ordering": {
             "success_rate": _mean(all_ordering),
             "by_topology": {t: _mean(v) for t, v in sorted(tally.ordering.items())},
+            "right_view": {
+                "success_rate": _mean([ok for values in tally.ordering_right.values() for ok in values]),
+                "by_topology": {t: _mean(v) for t, v in sorted(tally.ordering_right.items())},
+            },
         },
         "reconstruction": {
             "mean_error_mm": _mean(all_means, 1000),

@@ -78,11 +78,31 @@ def test_sequences_without_a_visibility_flag_are_scored_from_the_true_masks(sim_
         board.add(frame, StageOutputs(sequences=(truth, frame.true_right_sequence[:, :2])))
         board.add(frame, StageOutputs(sequences=(truth[::-1], frame.true_right_sequence[::-1, :2])))
     assert [r["ordering_success"] for r in board.tally.per_frame] == [True, False] * 3
+    assert [r["ordering_right_success"] for r in board.tally.per_frame] == [True, False] * 3
     # the ordering stage scores on the flattened bag as on the simulator's own flags
     flagged = evaluate([sim_bag], masks="ground_truth", sequences="predicted", use_images=False)
     scored = evaluate([flat], masks="ground_truth", sequences="predicted", use_images=False)
     assert scored["ordering"]["success_rate"] == flagged["ordering"]["success_rate"] > 0
     assert any("visibility from the true masks" in note for note in scored["notes"])
+
+
+def test_each_view_is_scored_against_its_own_truth(sim_bag):
+    frames = list(read_frames(sim_bag, images=False, complete=False))
+    board = Scoreboard()
+    for frame in frames:
+        left, right = frame.true_left_sequence[:, :2], frame.true_right_sequence[:, :2]
+        board.add(frame, StageOutputs(sequences=(left, right[::-1])))  # right view reversed
+        board.add(frame, StageOutputs(sequences=(left, left)))  # the left sequence sent as the right
+        board.add(frame, StageOutputs(sequences=None))  # the ordering gave none
+    records = board.tally.per_frame
+    assert [r["ordering_success"] for r in records] == [True, True, False] * 3
+    assert [r["ordering_right_success"] for r in records] == [False] * 9
+    assert "from the true cut tip" in records[0]["ordering_right"]
+    assert records[2]["ordering_right"] == "no sequence"
+    ordering = board.summary("ground_truth", "predicted")["ordering"]
+    assert ordering["success_rate"] == pytest.approx(2 / 3)
+    assert ordering["right_view"]["success_rate"] == 0.0
+    assert set(ordering["right_view"]["by_topology"]) == set(ordering["by_topology"])
 
 
 def test_the_report_of_a_cut_sample_bag_covers_the_frames_before_the_cut(tmp_path):
