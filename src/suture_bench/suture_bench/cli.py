@@ -142,6 +142,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="segment each image alone, not averaged with its mirror image (segmentation_node's "
         "flip_average false)",
     )
+    parser.add_argument(
+        "--mask-cache",
+        metavar="FILE",
+        help="with --masks predicted: keep every frame's masks in FILE (.npz) on the first run and read "
+        "them back on the next, instead of segmenting again (same model and options, same bags)",
+    )
     args = parser.parse_args(argv)
     try:
         summary = evaluate(
@@ -154,6 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             report=args.report,
             max_overlays=args.max_overlays,
             flip_average=not args.no_flip_average,
+            mask_cache=args.mask_cache,
         )
         if args.json:
             with open(args.json, "w") as stream:

@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from suture_bench.frames import EvaluationError, Frame, find_bags, read_frames
+from suture_bench.mask_cache import MaskCache, weights_digest
 from suture_common import topics
 from suture_common.bag_io import BagDamage, BagError
 from suture_segmentation.metrics import CentrelineCounts, centreline_counts
@@ -121,6 +122,7 @@ def evaluate(
     report: str | Path | None = None,
     max_overlays: int = 20,
     flip_average: bool = True,
+    mask_cache: str | Path | None = None,
 ) -> dict:
     """Run and score the pipeline over the bags at ``paths``; returns the JSON summary (a dict).
 
@@ -131,12 +133,21 @@ def evaluate(
     ordering the low masks of the predicted masks (module docstring); ``flip_average``: average
     each image's suture probability with its mirror image's (segmentation_node's default).
     ``report``: a folder for the per-frame JSON and pictures (``suture_bench.report``), at most
-    ``max_overlays`` overlays.
+    ``max_overlays`` overlays. ``mask_cache``: an ``.npz`` file for the predicted masks
+    (:mod:`suture_bench.mask_cache`): written with every frame's masks where it does not exist,
+    read instead of segmenting where it does.
     """
     if masks not in SOURCES or sequences not in SOURCES:
         raise EvaluationError(f"masks and sequences must be one of {SOURCES}, got {masks!r}, {sequences!r}")
     stages = _Stages(masks, sequences, seg_weights, use_images, use_low_masks, flip_average)
     scoreboard = Scoreboard(ordering_ran=sequences == "predicted")
+    if mask_cache is not None and masks == "predicted":
+        stages.mask_cache = _open_mask_cache(mask_cache, seg_weights, use_low_masks, flip_average)
+        if stages.mask_cache.loaded:
+            scoreboard.tally.note(
+                f"segmentation: masks read from the mask cache {mask_cache}; segmentation latency not "
+                "measured, total latency without it"
+            )
     if not use_images:
         scoreboard.tally.note("reconstruction: from the sequences alone (images not used)")
     if masks == "predicted" and not use_low_masks:
@@ -156,17 +167,34 @@ def evaluate(
         try:
             for frame in read_frames(bag, images=images, complete=False, skipped=skipped, damage=damage):
                 read += 1
-                outputs = _run_frame(frame, stages)
+                outputs = _run_frame(frame, stages, f"{bag.name}/{frame.stamp_ns}")
                 record = scoreboard.add(frame, outputs)
                 if writer is not None:
                     writer.add(frame, outputs, record)
         except BagError as error:
             raise EvaluationError(str(error)) from error
         scoreboard.bag_done(bag, read, skipped, damage)
+    if stages.mask_cache is not None:
+        stages.mask_cache.save()
     summary = scoreboard.summary(masks, sequences)
     if writer is not None:
         writer.finish(summary)
     return summary
+
+
+def _open_mask_cache(
+    path: str | Path, seg_weights: str | None, use_low_masks: bool, flip_average: bool
+) -> MaskCache:
+    """The mask cache at ``path`` for masks made by ``seg_weights`` with these options."""
+    from suture_segmentation.checkpoint import resolve_weights
+    from suture_segmentation.core import LOW_THRESHOLD
+
+    settings = {
+        "weights_sha256": weights_digest(resolve_weights(seg_weights)),
+        "flip_average": flip_average,
+        "low_threshold": LOW_THRESHOLD if use_low_masks else None,
+    }
+    return MaskCache(path, settings)
 
 
 class _Stages:
@@ -195,6 +223,7 @@ class _Stages:
 
         self.masks, self.sequences, self.use_images = masks, sequences, use_images
         self.segment: Callable[..., Any] | None = None
+        self.mask_cache: MaskCache | None = None
         self.order: Callable[..., Any] | None = None
         self.reconstruct = reconstruct
         if masks == "predicted":
@@ -384,8 +413,9 @@ def _within(tally: _Tally, topology: str | None = None) -> int:
     return count
 
 
-def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
-    """Run the stages the sources ask for on one frame (the nodes' core functions)."""
+def _run_frame(frame: Frame, stages: _Stages, key: str = "") -> StageOutputs:
+    """Run the stages the sources ask for on one frame (the nodes' core functions); ``key``
+    names the frame in the mask cache (bag name / stamp)."""
     outputs = StageOutputs()
     masks, low_masks = (frame.true_left_mask, frame.true_right_mask), None
     if stages.segment is None and stages.order is not None and (masks[0] is None or masks[1] is None):
@@ -396,11 +426,22 @@ def _run_frame(frame: Frame, stages: _Stages) -> StageOutputs:
             "the bag has no true sequences to start the 3D stage from (--sequences ground_truth)"
         )
         return outputs
-    if stages.segment is not None:
+    cached = None if stages.mask_cache is None else stages.mask_cache.get(key)
+    if stages.mask_cache is not None and stages.mask_cache.loaded and cached is None:
+        raise EvaluationError(
+            f"mask cache {stages.mask_cache.path} has no masks of frame {key}: it was made on other bags; "
+            "give another file"
+        )
+    if cached is not None:
+        masks, low_masks = cached
+        outputs.masks = masks
+    elif stages.segment is not None:
         start = time.perf_counter()
         masks, low_masks = stages.segment(frame.left_image, frame.right_image)
         outputs.latency_ms["segmentation"] = _elapsed_ms(start)
         outputs.masks = masks
+        if stages.mask_cache is not None:
+            stages.mask_cache.put(key, masks, low_masks)
 
     if stages.order is None:
         sequences = (frame.true_left_sequence[:, :2], frame.true_right_sequence[:, :2])

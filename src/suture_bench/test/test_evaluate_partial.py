@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from suture_bench.evaluate import Scoreboard, StageOutputs, evaluate
-from suture_bench.frames import read_frames
+from suture_bench.frames import EvaluationError, read_frames
 from suture_common import messages, topics
 from suture_common.bag_io import BagWriter, read_raw
 from suture_common.camera import StereoCamera
@@ -103,6 +103,26 @@ def test_each_view_is_scored_against_its_own_truth(sim_bag):
     assert ordering["success_rate"] == pytest.approx(2 / 3)
     assert ordering["right_view"]["success_rate"] == 0.0
     assert set(ordering["right_view"]["by_topology"]) == set(ordering["by_topology"])
+
+
+def test_a_mask_cache_gives_the_same_figures_and_refuses_other_masks(sim_bag, tmp_path):
+    cache = tmp_path / "masks.npz"
+    fresh = evaluate([sim_bag], seg_weights="m_ost_int8", use_images=False, mask_cache=cache)
+    assert cache.exists() and fresh["latency_ms"]["segmentation"] is not None
+    again = evaluate([sim_bag], seg_weights="m_ost_int8", use_images=False, mask_cache=cache)
+    assert again["segmentation"] == fresh["segmentation"]
+    assert again["grasp"] == fresh["grasp"] and again["ordering"] == fresh["ordering"]
+    assert again["latency_ms"]["segmentation"] is None
+    assert any("mask cache" in note for note in again["notes"])
+    with pytest.raises(EvaluationError, match="was made with"):
+        evaluate([sim_bag], seg_weights="m_ost_int8", flip_average=False, mask_cache=cache)
+    with pytest.raises(EvaluationError, match="was made with"):
+        evaluate([sim_bag], seg_weights="m_ost", mask_cache=cache)
+    with pytest.raises(EvaluationError, match="has no masks of frame"):
+        evaluate([SAMPLE], seg_weights="m_ost_int8", mask_cache=cache)
+    cache.write_bytes(b"not a cache")
+    with pytest.raises(EvaluationError, match="cannot be read"):
+        evaluate([sim_bag], seg_weights="m_ost_int8", mask_cache=cache)
 
 
 def test_the_report_of_a_cut_sample_bag_covers_the_frames_before_the_cut(tmp_path):
