@@ -74,7 +74,7 @@ def render_table(summary: dict, title: str = "suture-eval") -> str:
         f"{_fmt(grasp['median_error_mm']):>9s} {_fmt(grasp['max_error_mm']):>9s} {'':>11s} "
         f"{_fmt(grasp['within_5mm'], 1, 100, '%'):>7s}",
         "ordering: the left view's sequences (the right view's: "
-        f"{_fmt(summary['ordering'].get('right_view', {}).get('success_rate'), 1, 100, '%')})",
+        f"{_fmt(summary['ordering']['right_view']['success_rate'], 1, 100, '%')})",
         "errors in mm; mean err: per-frame mean path-to-centreline distance; max err: any path point; "
         "<= 5 mm: share of all frames (no grasp point = miss; a true grasp point hidden in a view: "
         "refused as not seen = success, grasped = miss)",

@@ -34,6 +34,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from suture_ordering.geometry import LINE_SHIFT
+
 #: Mask pixels farther than the thread's half width plus this (px) from the sequence are off it.
 CORRIDOR_MARGIN_PX = 1.5
 #: Where a piece's joins to the corridor lie more than this many thread widths (plus 4 px) of
@@ -114,8 +116,8 @@ def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: f
     """(H, W) uint8 1 within the corridor of ``points`` for a thread ``width`` px wide."""
     corridor = np.zeros(shape, dtype=np.uint8)
     thickness = max(1, int(width + 2 * CORRIDOR_MARGIN_PX * scale))
-    polyline = np.rint(points * 16).astype(np.int32).reshape(-1, 1, 2)
-    cv2.polylines(corridor, [polyline], False, 1, thickness, cv2.LINE_8, 4)
+    polyline = np.rint(points * (1 << LINE_SHIFT)).astype(np.int32).reshape(-1, 1, 2)
+    cv2.polylines(corridor, [polyline], False, 1, thickness, cv2.LINE_8, LINE_SHIFT)
     return corridor
 
 
