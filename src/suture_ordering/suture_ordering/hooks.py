@@ -105,6 +105,9 @@ LATERAL = 0.1
 #: their end.
 LEAVE_FROM = 0.5
 LEAVE_TO = 3.0
+#: The stroke is measured against that line over this arc (in step radii) from where the thread
+#: leaves it: farther, the thread's own bend moves the line off the stroke's arms.
+SIDE_OVER = 1.0
 #: Merged arms are moved apart where the thread leaves them at least this far (px) aside.
 SPLIT_SIDE = 0.5
 #: With a guide (the other view's walk), the walks that stray from it (:func:`_disagreement`)
@@ -409,34 +412,49 @@ def _stroke_side(
     the stroke (the passes ``after`` the stroke's way back), from ``LEAVE_FROM`` to
     ``LEAVE_TO`` ``reach`` of arc past the stroke's end: not to its skeleton, which near the
     stroke bends over from the stroke's centre to the thread's and runs a pixel aside where
-    the thread is one or two pixels wide; those offsets are the size of the side sought.
+    the thread is one or two pixels wide; those offsets are the size of the side sought. The
+    stroke is measured by its own mask pixels (not the thread's past its end) within
+    ``reach / 2`` of its first ``SIDE_OVER`` ``reach`` of arc, where the thread leaves it: a
+    line extended along a long stroke strays from it by a pixel where the thread bends gently.
     ``to_mask=False``: the line is fitted to the skeleton from 1 px to 2 ``reach`` past the
     stroke's end (where merged arms are moved apart, :func:`_split_merged_arms`)."""
     pixels = _oriented(graph, *stroke)
     beyond = np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]])
     if not to_mask:
         leaving = _within(beyond, 1.0, 2 * reach)
-        return _side_of_line(leaving, thread, pixels, reach) if len(leaving) >= 3 else None
+        return _side_of_line(leaving, _near(thread, pixels, reach / 2)) if len(leaving) >= 3 else None
     leaving = _within(beyond, LEAVE_FROM * reach, LEAVE_TO * reach)
     if len(leaving) < 3:
         return None
-    found = np.array(sorted({k for near in thread.query_ball_point(leaving, reach / 2) for k in near}))
-    if len(found) < 3:
+    own = _near(thread, leaving, reach / 2)
+    if len(own) < 3:
         return None
-    own = thread.data[found]
-    from_leaving = np.hypot(*(own[:, None, :] - leaving[None, :, :]).transpose(2, 0, 1)).min(axis=1)
-    from_stroke = np.hypot(*(own[:, None, :] - pixels[None, :, :]).transpose(2, 0, 1)).min(axis=1)
-    own = own[from_leaving < from_stroke]  # not the stroke's pixels next to the thread's start
-    return _side_of_line(own, thread, pixels, reach) if len(own) >= 3 else None
+    own = own[_nearer(own, leaving, pixels)]  # not the stroke's pixels next to the thread's start
+    stroke_own = _near(thread, _within(pixels.astype(np.float64), 0.0, SIDE_OVER * reach), reach / 2)
+    stroke_own = stroke_own[_nearer(stroke_own, pixels, beyond[1:])]  # nor the thread's past its end
+    if len(own) < 3 or len(stroke_own) == 0:
+        return None
+    return _side_of_line(own, stroke_own)
 
 
-def _side_of_line(points, thread, pixels, reach):
-    """The stroke's offset from the line fitted to ``points`` (K, 2), with the line's centre and
-    axis: the thread pixels within ``reach / 2`` of the stroke's ``pixels``, measured across it."""
+def _near(thread: cKDTree, pixels: np.ndarray, radius: float) -> np.ndarray:
+    """The thread's pixels (K, 2) within ``radius`` px of any of ``pixels`` (N, 2)."""
+    return thread.data[sorted({k for found in thread.query_ball_point(pixels, radius) for k in found})]
+
+
+def _nearer(points: np.ndarray, these: np.ndarray, those: np.ndarray) -> np.ndarray:
+    """(K,) bool: which ``points`` lie nearer to ``these`` pixels than to ``those``."""
+    if len(those) == 0:
+        return np.ones(len(points), dtype=bool)
+    return cKDTree(these).query(points)[0] < cKDTree(those).query(points)[0]
+
+
+def _side_of_line(points: np.ndarray, stroke: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The offset of the ``stroke``'s pixels (K, 2) from the line fitted to ``points`` (J, 2),
+    measured across it, with the line's centre and axis."""
     centre = points.mean(axis=0)
     axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
-    near = sorted({k for found in thread.query_ball_point(pixels, reach / 2) for k in found})
-    return -_offset(thread.data[near], centre, axis), centre, axis
+    return -_offset(stroke, centre, axis), centre, axis
 
 
 def _loop_against_side(

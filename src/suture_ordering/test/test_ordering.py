@@ -754,6 +754,14 @@ def test_right_view_goes_round_a_hooks_loop_the_way_the_left_view_does():
     check_stored_stereo_frame("hooked_loop_merged_arms_stereo.npz")
 
 
+def test_loop_at_the_end_of_long_merged_arms_is_gone_round_the_way_a_bending_thread_leaves():
+    """A simulator frame (hooked, 640x480, true masks): merged arms 35 px long end in a loop,
+    and the thread leaving them bends gently. Its line, extended along the whole stroke, strays
+    by about as much as the arms lie apart (the whole stroke's side: 0.04 px, which tells
+    nothing); measured within a chord of where the thread leaves, it is the returning arm's."""
+    check_stored_stereo_frame("hooked_long_merged_arms_bending_away.npz")
+
+
 def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
     """A simulator frame (hooked, 640x480, true masks): a hairpin whose arms lie a pixel apart
     and touch diagonally next to the cut tip, so that thinning leaves a cycle 2 px long between
