@@ -762,6 +762,14 @@ def test_loop_at_the_end_of_long_merged_arms_is_gone_round_the_way_a_bending_thr
     check_stored_stereo_frame("hooked_long_merged_arms_bending_away.npz")
 
 
+def test_right_view_goes_round_a_loop_a_tenth_of_its_walk_the_way_the_left_view_does():
+    """A simulator frame (hooked, 1280x1024, true masks): a loop at the end of merged arms, a
+    tenth of the hook's walk, whose two ways round turn alike (0.85 and 0.90 rad in the right
+    view). The left view's guide tells them apart only along the loop: the walks are compared
+    with it by their largest distance, not by a percentile that leaves the loop out."""
+    check_stored_stereo_frame("hooked_right_loop_a_tenth_of_the_walk_1280.npz")
+
+
 def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
     """A simulator frame (hooked, 640x480, true masks): a hairpin whose arms lie a pixel apart
     and touch diagonally next to the cut tip, so that thinning leaves a cycle 2 px long between
