@@ -486,11 +486,19 @@ def _loop_against_side(
             continue
         side, centre, axis = found
         arc = _oriented(graph, loop, loop_rev)
-        arms = _offset(_within(arc[::-1], reach / 2, reach), centre, axis)
-        arms -= _offset(_within(arc, reach / 2, reach), centre, axis)
+        near, far = _arms_window(graph.branches[loop].length, reach)
+        arms = _offset(_within(arc[::-1], near, far), centre, axis)
+        arms -= _offset(_within(arc, near, far), centre, axis)
         if abs(side) >= LATERAL and abs(arms) >= LATERAL and side * arms < 0:
             return True
     return False
+
+
+def _arms_window(loop_length: float, reach: float) -> tuple[float, float]:
+    """The arc (px, from each end of a loop ``loop_length`` px long) over which its two arms are
+    compared: ``reach / 2`` to ``reach``, but within a quarter of the loop, since past its half
+    each end's samples lie on the other arm's side."""
+    return min(reach / 2, loop_length / 8), min(reach, loop_length / 4)
 
 
 def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> list[tuple[int, int]]:

@@ -770,6 +770,15 @@ def test_right_view_goes_round_a_loop_a_tenth_of_its_walk_the_way_the_left_view_
     check_stored_stereo_frame("hooked_right_loop_a_tenth_of_the_walk_1280.npz")
 
 
+def test_small_loop_at_the_end_of_merged_arms_has_its_arms_compared_before_its_half():
+    """A simulator frame (hooked, 1280x1024, true masks): merged arms about 70 px long end in a
+    loop of 20 px of skeleton, shorter than two chords. Its arms, compared half a chord to a
+    chord from either end, were each sampled past the loop's half, on the other arm's side, and
+    the walk went round against the thread; they are compared within a quarter of the loop.
+    (The sequences stop about 60 px before the far end, within the evaluator's 90 %.)"""
+    check_stored_stereo_frame("hooked_small_loop_after_merged_arms_1280.npz", coverage=0.9)
+
+
 def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
     """A simulator frame (hooked, 640x480, true masks): a hairpin whose arms lie a pixel apart
     and touch diagonally next to the cut tip, so that thinning leaves a cycle 2 px long between
