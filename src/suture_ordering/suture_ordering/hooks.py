@@ -427,10 +427,8 @@ def _stroke_side(
     if len(leaving) < 3:
         return None
     own = _near(thread, leaving, reach / 2)
-    if len(own) < 3:
-        return None
     own = own[_nearer(own, leaving, pixels)]  # not the stroke's pixels next to the thread's start
-    stroke_own = _near(thread, _within(pixels.astype(np.float64), 0.0, SIDE_OVER * reach), reach / 2)
+    stroke_own = _near(thread, _within(pixels, 0.0, SIDE_OVER * reach), reach / 2)
     stroke_own = stroke_own[_nearer(stroke_own, pixels, beyond[1:])]  # nor the thread's past its end
     if len(own) < 3 or len(stroke_own) == 0:
         return None
@@ -443,9 +441,7 @@ def _near(thread: cKDTree, pixels: np.ndarray, radius: float) -> np.ndarray:
 
 
 def _nearer(points: np.ndarray, these: np.ndarray, those: np.ndarray) -> np.ndarray:
-    """(K,) bool: which ``points`` lie nearer to ``these`` pixels than to ``those``."""
-    if len(those) == 0:
-        return np.ones(len(points), dtype=bool)
+    """(K,) bool: which ``points`` lie nearer to ``these`` pixels than to ``those`` (neither empty)."""
     return cKDTree(these).query(points)[0] < cKDTree(those).query(points)[0]
 
 
