@@ -22,6 +22,7 @@ setup(
     entry_points={
         "console_scripts": [
             "suture-eval = suture_bench.cli:main",
+            "suture-eval-compare = suture_bench.compare:main",
             "suture-fewshot = suture_bench.fewshot:main",
             "suture-graph-report = suture_bench.graph_report:main",
             "suture-recon-bench = suture_bench.reconstruction_metrics:main",

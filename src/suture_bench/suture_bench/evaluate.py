@@ -274,7 +274,10 @@ class Scoreboard:
         self.tally = _Tally()
 
     def add(self, frame: Frame, outputs: StageOutputs) -> dict[str, Any]:
-        """Score one frame's outputs; returns its per-frame record (also kept in the summary)."""
+        """Score one frame's outputs; returns its per-frame record (also kept in the summary).
+
+        The record's ``success`` says whether the frame counts in ``within_5mm`` (absent where
+        the bag has no true 3D path and grasp point to score it against)."""
         from suture_bench.ordering_metrics import ordering_success
         from suture_bench.reconstruction_metrics import reprojection_to_masks, score_reconstruction
 
@@ -319,6 +322,7 @@ class Scoreboard:
         if not record["grasp_produced"]:
             if frame.true_path is not None and frame.true_grasp is not None:
                 tally.grasp_missing[frame.topology] += 1
+                record["success"] = bool(hidden) and outputs.failure == NOT_SEEN_REFUSAL
                 if hidden and outputs.failure == NOT_SEEN_REFUSAL:
                     tally.hidden_success[frame.topology] += 1
                     tally.hidden["refused_not_seen"] += 1
@@ -349,6 +353,7 @@ class Scoreboard:
         if hidden and score.grasp_error <= WITHIN:
             tally.hidden_grasped_within[frame.topology] += 1
         record.update(score.as_mm())
+        record["success"] = not hidden and score.grasp_error <= WITHIN
         return record
 
     def _score_masks(self, frame: Frame, masks: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
