@@ -122,8 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--seg-weights",
         metavar="WEIGHTS",
         help="segmentation model for --masks predicted: m_onsite_half (on-site; default: its int8 "
-        "export), m_onsite (its full-resolution twin), m_ost (legacy), m_tosot (the paper's on-site "
-        "transfer), m_general (cameras not seen in training), their _int8 exports, or a .pt/.onnx file",
+        "export), m_onsite (its full-resolution twin), m_ost (legacy), m_ost_hard (legacy, hooks, wide "
+        "shafts, threads along the rows), m_tosot (the paper's on-site transfer), m_general (cameras "
+        "not seen in training), their _int8 exports, or a .pt/.onnx file",
     )
     parser.add_argument(
         "--no-images",

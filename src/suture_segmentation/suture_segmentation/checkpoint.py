@@ -33,6 +33,11 @@ SHIPPED = {
     "m_tosot": WEIGHTS_DIR / "m_tosot.pt",
     "m_ost_int8": WEIGHTS_DIR / "m_ost_int8.onnx",
     "m_tosot_int8": WEIGHTS_DIR / "m_tosot_int8.onnx",
+    # M-oST continued on the hard scenes (hooks at the cut end, wide instrument shafts, threads
+    # along the rows) and the paper's five, in legacy and randomised looks: the legacy camera's
+    # model where those scenes occur.
+    "m_ost_hard": WEIGHTS_DIR / "m_ost_hard.pt",
+    "m_ost_hard_int8": WEIGHTS_DIR / "m_ost_hard_int8.onnx",
     # M-oST continued on domain-randomised and legacy frames with augmentation: for a camera not
     # seen yet.
     "m_general": WEIGHTS_DIR / "m_general.pt",

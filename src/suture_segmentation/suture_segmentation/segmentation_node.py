@@ -17,10 +17,11 @@ ordering_node follows where the thread is faint; ``low_threshold`` 0 publishes n
 
 Parameters (read at start-up): see :data:`PARAMETERS`. ``weights`` "" is the shipped on-site
 model ``m_onsite_half``: its int8 export (``suture_segmentation/weights/m_onsite_half_int8.onnx``)
-with the onnx backend on the CPU, ``m_onsite_half.pt`` otherwise; "m_ost"/"m_onsite_half"/
-"m_onsite"/"m_tosot"/"m_general" name a shipped model and the same names with "_int8" its int8
-ONNX export (backend onnx); anything else is a ``.pt`` checkpoint or an ``.onnx`` file.
-``m_ost`` is the legacy camera's model, ``m_tosot`` the paper's transfer to the on-site camera
+with the onnx backend on the CPU, ``m_onsite_half.pt`` otherwise; "m_ost"/"m_ost_hard"/
+"m_onsite_half"/"m_onsite"/"m_tosot"/"m_general" name a shipped model and the same names with
+"_int8" its int8 ONNX export (backend onnx); anything else is a ``.pt`` checkpoint or an ``.onnx``
+file. ``m_ost`` is the legacy camera's model (the paper's M-oST), ``m_ost_hard`` the same continued
+on hooks, wide shafts and threads along the rows, ``m_tosot`` the paper's transfer to the on-site camera
 from 40 labelled images, ``m_onsite`` the same camera's model from 800, and ``m_onsite_half`` its
 half-resolution variant (as accurate, about 0.6 of the time per pair); ``m_general`` (trained on
 domain-randomised frames) is meant for a camera that none of the models has seen.
@@ -81,8 +82,8 @@ PARAMETERS: dict[str, ParameterSpec] = spec_table(
         ParameterSpec(
             "weights",
             "",
-            'model weights: "" = shipped m_onsite_half, "m_ost"/"m_onsite_half"/"m_onsite"/"m_tosot"/'
-            '"m_general"[_int8], or a .pt/.onnx file',
+            'model weights: "" = shipped m_onsite_half, "m_ost"/"m_ost_hard"/"m_onsite_half"/"m_onsite"/'
+            '"m_tosot"/"m_general"[_int8], or a .pt/.onnx file',
         ),
         ParameterSpec("backend", "onnx", "inference backend: onnx (ONNX Runtime) or torch"),
         ParameterSpec("device", "cpu", "cpu or cuda[:N]"),

@@ -26,7 +26,7 @@ MIN_TOSOT_IOU = 0.72
 MIN_ONSITE_IOU = 0.78
 
 
-@pytest.mark.parametrize("name", ["m_ost", "m_tosot", "m_general", "m_onsite", "m_onsite_half"])
+@pytest.mark.parametrize("name", ["m_ost", "m_ost_hard", "m_tosot", "m_general", "m_onsite", "m_onsite_half"])
 def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     path = SHIPPED[name]
     assert path.stat().st_size < 2_000_000
@@ -36,13 +36,17 @@ def test_shipped_checkpoint_is_small_and_records_its_command(name: str) -> None:
     # with --photometric; M-ToSOT is its fine-tune
     expected = "suture-seg finetune" if name == "m_tosot" else "suture-seg train --init"
     assert meta["command"].startswith(expected) and isinstance(meta["config"]["seed"], int)
-    if name in ("m_ost", "m_general"):
+    if name in ("m_ost", "m_ost_hard", "m_general"):
         assert meta["initialised_from"]["command"].startswith("suture-seg train --init")
     if name == "m_ost":
         assert meta["config"]["photometric"] and "--photometric" in meta["command"]
     if name == "m_general":  # M-oST continued on domain-randomised frames, kornia augmentation
         assert meta["config"]["augment"] and "--augment" in meta["command"]
         assert meta["initialised_from"]["weights"] == "m_ost"
+    if name == "m_ost_hard":  # M-oST continued 9,000 steps on hard and mixed frames (docs/results.md)
+        assert meta["initialised_from"]["weights"] == "m_ost" and meta["training_images"] == 3200
+        assert meta["config"]["photometric"] and meta["config"]["structure_crops"] == 0.35
+        assert meta["config"]["epochs"] * meta["config"]["steps_per_epoch"] == 9000
     if name == "m_onsite":  # every layer of M-oST fine-tuned on 400 on-site images, then on 800
         first = meta["initialised_from"]["command"]
         assert first.startswith("suture-seg finetune --weights m_ost") and "--all-layers" in first
@@ -82,6 +86,7 @@ def test_transferred_model_beats_the_offline_model_on_site(onsite_frames: list) 
     ("name", "domain", "calibration"),
     [
         ("m_ost", "legacy", "legacy_train_big"),
+        ("m_ost_hard", "legacy", "ost_hard_pool"),
         ("m_tosot", "on-site", "onsite_train"),
         ("m_general", "on-site", "mix"),
         ("m_onsite", "on-site", "pool"),
