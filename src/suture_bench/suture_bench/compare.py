@@ -24,8 +24,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-#: A scored grasp farther than this (mm) from the true grasp point is a wrong grasp.
-WRONG_GRASP_MM = 10.0
+from suture_bench.evaluate import WRONG_GRASP
+
+#: The evaluator's wrong grasp (``grasp.beyond_10mm``) in the per-frame records' millimetres.
+WRONG_GRASP_MM = 1000 * WRONG_GRASP
 
 
 class CompareError(ValueError):
@@ -34,19 +36,27 @@ class CompareError(ValueError):
 
 @dataclass
 class Comparison:
-    """Frame-by-frame difference of two runs over their ``frames`` scored frames: successes and
-    grasps more than :data:`WRONG_GRASP_MM` off in each, ``by_topology`` (base successes, new
-    successes, frames), and ``gained``/``lost``: (index, topology, base outcome, new outcome) of
-    the frames whose success changed."""
+    """Frame-by-frame difference of two runs: ``by_topology`` (base successes, new successes,
+    frames scored), grasps more than :data:`WRONG_GRASP_MM` off in each, and ``gained``/``lost``:
+    (index, topology, base outcome, new outcome) of the frames whose success changed."""
 
-    frames: int
-    base_successes: int
-    new_successes: int
-    base_wrong: int
-    new_wrong: int
     by_topology: dict[str, tuple[int, int, int]] = field(default_factory=dict)
+    base_wrong: int = 0
+    new_wrong: int = 0
     gained: list[tuple[int, str, str, str]] = field(default_factory=list)
     lost: list[tuple[int, str, str, str]] = field(default_factory=list)
+
+    @property
+    def base_successes(self) -> int:
+        return sum(base for base, _, _ in self.by_topology.values())
+
+    @property
+    def new_successes(self) -> int:
+        return sum(new for _, new, _ in self.by_topology.values())
+
+    @property
+    def frames(self) -> int:
+        return sum(total for _, _, total in self.by_topology.values())
 
     def as_dict(self) -> dict[str, Any]:
         def rows(changes: list[tuple[int, str, str, str]]) -> list[dict[str, Any]]:
@@ -103,7 +113,7 @@ def compare_records(base: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]
     the records' ``success``)."""
     if len(base) != len(new):
         raise CompareError(f"the runs have {len(base)} and {len(new)} frames: run both over the same bags")
-    comparison = Comparison(0, 0, 0, 0, 0)
+    comparison = Comparison()
     counts: dict[str, list[int]] = defaultdict(lambda: [0, 0, 0])
     for index, (old_record, new_record) in enumerate(zip(base, new, strict=True)):
         same = all(old_record.get(key) == new_record.get(key) for key in ("stamp_ns", "topology"))
@@ -114,22 +124,19 @@ def compare_records(base: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]
             if scored == (False, False):  # no 3D truth to score it against, in either run
                 continue
             raise CompareError(f"frame {index} is scored in one run only: run both with this suture-eval")
-        comparison.frames += 1
         topology = str(new_record.get("topology"))
         successes = (bool(old_record["success"]), bool(new_record["success"]))
         counts[topology][0] += successes[0]
         counts[topology][1] += successes[1]
         counts[topology][2] += 1
-        comparison.base_successes += successes[0]
-        comparison.new_successes += successes[1]
         comparison.base_wrong += _wrong(old_record)
         comparison.new_wrong += _wrong(new_record)
         if successes[0] != successes[1]:
             change = (index, topology, outcome(old_record), outcome(new_record))
             (comparison.gained if successes[1] else comparison.lost).append(change)
+    comparison.by_topology = {name: (base, new, total) for name, (base, new, total) in sorted(counts.items())}
     if comparison.frames == 0:
         raise CompareError("no frame is scored in the reports (true 3D path and grasp point, and 'success')")
-    comparison.by_topology = {name: (base, new, total) for name, (base, new, total) in sorted(counts.items())}
     return comparison
 
 

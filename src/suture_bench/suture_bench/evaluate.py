@@ -73,6 +73,8 @@ from suture_segmentation.metrics import CentrelineCounts, centreline_counts
 SOURCES = ("predicted", "ground_truth")
 WITHIN = 0.005
 """A grasp point within this distance (m) of the true one is a success."""
+WRONG_GRASP = 0.010
+"""A scored grasp point farther than this (m) from the true one is a wrong grasp (``beyond_10mm``)."""
 NOT_SEEN_REFUSAL = "reconstruction: GraspNotSeenError"
 """The refusal that is the right answer for a frame whose true grasp point is hidden."""
 
@@ -102,8 +104,6 @@ class _Tally:
     failures: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     grasp_missing: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     hidden: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    hidden_success: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    hidden_grasped_within: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     notes: list[str] = field(default_factory=list)
     per_frame: list[dict[str, Any]] = field(default_factory=list)
 
@@ -323,8 +323,7 @@ class Scoreboard:
             if frame.true_path is not None and frame.true_grasp is not None:
                 tally.grasp_missing[frame.topology] += 1
                 record["success"] = bool(hidden) and outputs.failure == NOT_SEEN_REFUSAL
-                if hidden and outputs.failure == NOT_SEEN_REFUSAL:
-                    tally.hidden_success[frame.topology] += 1
+                if record["success"]:
                     tally.hidden["refused_not_seen"] += 1
                 elif hidden:
                     tally.hidden["refused_otherwise"] += 1
@@ -350,8 +349,6 @@ class Scoreboard:
         tally.length_error[frame.topology].append(abs(score.length_error))
         tally.keypoints[frame.topology].append(float(np.mean(score.keypoint_errors)))
         tally.grasp[frame.topology].append(score.grasp_error)
-        if hidden and score.grasp_error <= WITHIN:
-            tally.hidden_grasped_within[frame.topology] += 1
         record.update(score.as_mm())
         record["success"] = not hidden and score.grasp_error <= WITHIN
         return record
@@ -409,13 +406,10 @@ def true_grasp_hidden(frame: Frame) -> bool | None:
 
 def _within(tally: _Tally, topology: str | None = None) -> int:
     """Frames that count as successes: grasps within 5 mm of a true grasp point that is not hidden,
-    and refusals of a hidden one as not seen (over every topology when ``topology`` is None)."""
-    topologies = set(tally.grasp) | set(tally.hidden_success) if topology is None else {topology}
-    count = 0
-    for name in topologies:
-        count += int(np.sum(np.asarray(tally.grasp.get(name, [])) <= WITHIN))
-        count += tally.hidden_success.get(name, 0) - tally.hidden_grasped_within.get(name, 0)
-    return count
+    and refusals of a hidden one as not seen: the per-frame records' ``success`` (over every
+    topology when ``topology`` is None)."""
+    records = tally.per_frame
+    return sum(bool(r.get("success")) for r in records if topology is None or r["topology"] == topology)
 
 
 def _run_frame(frame: Frame, stages: _Stages, key: str = "") -> StageOutputs:
@@ -579,7 +573,7 @@ def _summary(tally: _Tally, masks: str, sequences: str) -> dict:
             "max_error_mm": float(np.max(all_grasp)) * 1000 if all_grasp else None,
             "within_5mm": _within(tally) / scored_frames if scored_frames else None,
             "produced": tally.produced,
-            "beyond_10mm": int(np.sum(np.asarray(all_grasp) > 0.010)) if all_grasp else None,
+            "beyond_10mm": int(np.sum(np.asarray(all_grasp) > WRONG_GRASP)) if all_grasp else None,
             "refused": dict(sorted(tally.failures.items())),
             "hidden": {
                 key: tally.hidden.get(key, 0)
