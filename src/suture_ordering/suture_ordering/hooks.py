@@ -11,23 +11,26 @@ runs from the tip along its arm to the bend, back along the other arm past the t
 over a merged stretch the sequence passes twice.
 
 The walk follows the mask's skeleton within ``HOOK_WINDOW`` RoI radii Υ of the tip
-(:func:`hook_walk`). The skeleton becomes a graph of branches between free ends, junctions,
-the tip and the window's rim. A walk starts at the tip (or at a free end within ``NEAR`` px of
-it), ends on the rim, passes every branch of the hook (each at most twice; a branch shorter
-than ``SPUR`` px to a free end is a spur of the thinning and may be left out), turns back only
-at free ends (at the mask's end, past the skeleton's), and goes on at a junction through any
-branch. Of all such walks the one that turns least where it passes a junction or the tip
-wins, then the shortest: each turn is the angle between the chords ``step_radius`` px along
-the walk before and after the pass, so a crossing is crossed straight and a loop is gone round
-the way the tip arm enters it. Where the walk passes merged arms down to a loop and back, the
-skeleton is one line the same both ways round; the loop is gone round so that the walk leaves
-it by its arm on the stroke's side that the thread leaves by (:func:`_loop_against_side`).
-Over merged arms the walk's way down moves onto the tip arm and its way back onto the
-returning arm (:func:`_split_merged_arms`), rather than both down the stroke's centre. A branch
-leaves the window where its end, or its thread extended to the mask's end, lies within the
-spur length plus 3 px of the window's edge (a thread cut slanting by the window thins to a
-skeleton that stops short of it). The search then starts from the walk's end with the walk as its
-path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
+(:func:`hook_walk`). The skeleton becomes a graph of branches between free ends, junctions, the
+tip and the window's rim. A walk starts at the tip (or at a free end within ``NEAR`` px of it),
+ends on the rim, passes every branch of the hook (each at most twice; a branch shorter than
+``SPUR`` px to a free end is a spur of the thinning and may be left out, and so may an arm of
+another thread that crosses ours and ends inside the window where the mask loses it: a branch to a
+free end that runs on straight across its junction into a branch as wide as itself,
+:func:`_passing_strands`; merged arms down to a hairpin's bend are twice as wide as the arm that
+leaves them), turns back only at free ends (at the mask's end, past the skeleton's), and goes on
+at a junction through any branch. Of all such walks the one that turns least where it passes a
+junction or the tip wins, then the shortest: each turn is the angle between the chords
+``step_radius`` px along the walk before and after the pass, so a crossing is crossed straight and
+a loop is gone round the way the tip arm enters it. Where the walk passes merged arms down to a
+loop and back, the skeleton is one line the same both ways round; the loop is gone round so that
+the walk leaves it by its arm on the stroke's side that the thread leaves by
+(:func:`_loop_against_side`). Over merged arms the walk's way down moves onto the tip arm and its
+way back onto the returning arm (:func:`_split_merged_arms`), rather than both down the stroke's
+centre. A branch leaves the window where its end, or its thread extended to the mask's end, lies
+within the spur length plus 3 px of the window's edge (a thread cut slanting by the window thins
+to a skeleton that stops short of it). The search then starts from the walk's end with the walk as
+its path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
 track.
 
 When (:func:`hook_start`, :func:`hook_after_search`): a hint with no free end within the tip
@@ -93,6 +96,10 @@ HOOK_WINDOW = 3.0
 SPUR = 3.0
 #: A free end this near (px at 640 px) to the tip's pixel is the cut tip.
 NEAR = 5.0
+#: A branch to a free end that runs on across a junction within this turn (rad) into a branch
+#: no thinner than it by this factor is another strand's arm (:func:`_passing_strands`).
+PASSING_TURN = math.radians(30.0)
+PASSING_WIDTH = 1.4
 #: Spacing (px) of the search's vertices along the walk.
 DENSE = 1.0
 #: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
@@ -235,10 +242,10 @@ def _skeleton_graph(skeleton: np.ndarray, tip: np.ndarray, rim: np.ndarray) -> _
     return _Graph(branches, kind, tip_node)
 
 
-def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
+def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) -> list[list[tuple[int, bool]]]:
     """Every walk from the tip to the rim that passes each of the hook's branches once or twice
-    and turns back only at free ends (at most :data:`MAX_WALKS` of them): lists of (branch
-    index, reversed)."""
+    (those of ``passing``, other strands' arms, at most) and turns back only at free ends (at
+    most :data:`MAX_WALKS` of them): lists of (branch index, reversed)."""
     branches = graph.branches
     incident: dict[int, list[tuple[int, bool]]] = {}
     for k, branch in enumerate(branches):
@@ -253,6 +260,7 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
         for k, b in enumerate(branches)
         if "rim" not in kinds[k]
         and not (b.length < spur and ("end" not in kinds[k] or graph.tip not in (b.a, b.b)))
+        and k not in passing
     ]
     found: list[list[tuple[int, bool]]] = []
     uses = [0] * len(branches)
@@ -281,6 +289,62 @@ def _walks(graph: _Graph, spur: float) -> list[list[tuple[int, bool]]]:
 
     extend(graph.tip, [])
     return found
+
+
+def _passing_strands(graph: _Graph, depth: np.ndarray, spur: float, step: float) -> frozenset[int]:
+    """The branches to a free end (not the tip's) that are the arm of another thread crossing ours
+    in an X, the mask having lost that thread inside the window: at a junction (its place,
+    :func:`_places`) with four arms, the branch runs on within :data:`PASSING_TURN` into an arm no
+    thinner than it by :data:`PASSING_WIDTH` (``depth``: (h, w) the window's distance transform)
+    that leaves the window, and the other two arms run on into each other as straight, one of them
+    out of the window too. A hairpin's merged arms meet the arm that leaves them in three arms, and
+    are twice its width; a loop at the tip crosses its tip arm with arms that stay in the window."""
+    places = _places(graph, spur)
+    at_place: dict[int, list[tuple[int, bool]]] = {}
+    for k, branch in enumerate(graph.branches):
+        if branch.length < spur and "end" not in (graph.kind[branch.a], graph.kind[branch.b]):
+            continue  # a little cycle of the thinning inside the junction
+        at_place.setdefault(places[branch.a], []).append((k, False))  # its pixels leave a
+        at_place.setdefault(places[branch.b], []).append((k, True))  # and run into b
+
+    def outward(k: int, into: bool) -> tuple[np.ndarray, float, str]:
+        """The unit direction in which branch ``k`` leaves its node (its end node ``b`` when
+        ``into``), its width beyond 2 chords from there, and the kind of its far node."""
+        branch = graph.branches[k]
+        pixels = branch.pixels.astype(np.float64)
+        ordered = pixels[::-1] if into else pixels
+        direction = _within(ordered, 0.0, 2 * step)[-1] - ordered[0]
+        cells = np.rint(_within(ordered, 2 * step, np.inf)).astype(int)
+        width = float(np.median(depth[cells[:, 1], cells[:, 0]]))
+        return (
+            direction / max(float(np.hypot(*direction)), 1e-9),
+            width,
+            graph.kind[branch.a if into else branch.b],
+        )
+
+    def straight(one: tuple[np.ndarray, float, str], other: tuple[np.ndarray, float, str]) -> bool:
+        return math.acos(float(np.clip(-one[0] @ other[0], -1.0, 1.0))) <= PASSING_TURN
+
+    passing = set()
+    for arms in at_place.values():
+        if len(arms) != 4 or len({k for k, _ in arms}) != 4:
+            continue
+        measured = [outward(k, into) for k, into in arms]
+        for i, (k, _) in enumerate(arms):
+            if measured[i][2] != "end" or graph.tip in (graph.branches[k].a, graph.branches[k].b):
+                continue
+            for j in range(4):
+                rest = [m for m in range(4) if m not in (i, j)]
+                if (
+                    j != i
+                    and measured[j][2] == "rim"
+                    and measured[i][1] <= PASSING_WIDTH * measured[j][1]
+                    and straight(measured[i], measured[j])
+                    and straight(measured[rest[0]], measured[rest[1]])
+                    and "rim" in (measured[rest[0]][2], measured[rest[1]][2])
+                ):
+                    passing.add(k)
+    return frozenset(passing)
 
 
 def _places(graph: _Graph, spur: float) -> dict[int, int]:
@@ -657,7 +721,8 @@ def hook_walk(
                 fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)
                 extra = end + fractions * (outer - end)
                 branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
-    walks = _walks(graph, spur)
+    depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    walks = _walks(graph, spur, _passing_strands(graph, depth, spur, step))
     thread, sides = cKDTree(np.argwhere(own)[:, ::-1].astype(np.float64)), {}
     if not walks:
         return None
@@ -685,7 +750,6 @@ def hook_walk(
             scores = [score for score, _ in scored]
             both = _both_views(smoothed, scores, against, other, scale, (best, guided))
         best, other_choice = (guided, None) if both is None else both
-    depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     path = _split_merged_arms(graph, walks[best], step, thread, depth)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
         tail = np.rint(path[-max(2, len(path) // 3) :]).astype(int)

@@ -788,6 +788,24 @@ def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
     check_stored_stereo_frame("hooked_arms_touching_near_the_tip.npz")
 
 
+def test_a_crossing_strand_that_ends_in_the_hooks_window_is_not_walked():
+    """Predicted masks (M-oST int8) of a simulator frame (crossed, 640x480): a thin thread
+    crosses a thicker one 56 px of arc from its cut tip, inside the hook's window, and the mask
+    loses the thicker thread 63 px from the tip. The search crossed straight, but the thicker
+    thread's unvisited pixels made the hook's walk take over; its arm to that end had to be
+    walked out and back, and the walk then left along the thicker thread (a grasp 25.6 mm off).
+    At the crossing's four arms that arm runs on straight into one as wide as itself that leaves
+    the window, as our thread does into the fourth: another strand's arm, which the walk need
+    not pass."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_crossing_in_the_hook_window.npz")
+    height, width = (int(n) for n in stored["shape"])
+    size = height * width
+    left, right = (np.unpackbits(stored[view])[:size].reshape(height, width) for view in ("left", "right"))
+    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(width, height))
+    for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
+        check_follows(sequence[:150, :2], truth.astype(float), tolerance=3.5, coverage=0.0)
+
+
 def test_a_tip_arm_that_thinning_ate_back_is_walked_from_the_masks_end():
     """A simulator frame (hooked, 640x480, true masks): the tip arm is drawn 2 px wide on the
     diagonal and its skeleton stops 12 px short of the cut tip; the walk through the hook
