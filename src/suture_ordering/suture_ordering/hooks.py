@@ -291,7 +291,9 @@ def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) ->
     return found
 
 
-def _passing_strands(graph: _Graph, depth: np.ndarray, spur: float, step: float) -> frozenset[int]:
+def _passing_strands(
+    graph: _Graph, places: dict[int, int], depth: np.ndarray, spur: float, step: float
+) -> frozenset[int]:
     """The branches to a free end (not the tip's) that are the arm of another thread crossing ours
     in an X, the mask having lost that thread inside the window: at a junction (its place,
     :func:`_places`) with four arms, the branch runs on within :data:`PASSING_TURN` into an arm no
@@ -299,7 +301,6 @@ def _passing_strands(graph: _Graph, depth: np.ndarray, spur: float, step: float)
     that leaves the window, and the other two arms run on into each other as straight, one of them
     out of the window too. A hairpin's merged arms meet the arm that leaves them in three arms, and
     are twice its width; a loop at the tip crosses its tip arm with arms that stay in the window."""
-    places = _places(graph, spur)
     at_place: dict[int, list[tuple[int, bool]]] = {}
     for k, branch in enumerate(graph.branches):
         if branch.length < spur and "end" not in (graph.kind[branch.a], graph.kind[branch.b]):
@@ -722,7 +723,8 @@ def hook_walk(
                 extra = end + fractions * (outer - end)
                 branch.pixels = np.vstack([extra[::-1], branch.pixels] if first else [branch.pixels, extra])
     depth = cv2.distanceTransform(own.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    walks = _walks(graph, spur, _passing_strands(graph, depth, spur, step))
+    places = _places(graph, spur)
+    walks = _walks(graph, spur, _passing_strands(graph, places, depth, spur, step))
     thread, sides = cKDTree(np.argwhere(own)[:, ::-1].astype(np.float64)), {}
     if not walks:
         return None
@@ -756,7 +758,6 @@ def hook_walk(
         half = max(0.0, float(np.median(depth[tail[:, 1], tail[:, 0]])) - 0.5)
         path = _to_tip(own, path, np.asarray(tip, dtype=np.float64) - (u0, v0), step, half)
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
-    places = _places(graph, spur)
     revisits = len({places[n] for n in nodes}) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
