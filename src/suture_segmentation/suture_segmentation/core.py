@@ -56,10 +56,9 @@ class Segmenter:
         A ``.pt`` checkpoint (``suture-seg train|finetune`` writes them), an ``.onnx`` file
         (``suture-seg export [--int8]``; ONNX backend only), ``"m_ost"``/``"m_ost_hard"``/
         ``"m_onsite_half"``/``"m_onsite"``/``"m_tosot"``/``"m_general"`` (or their int8 ONNX
-        exports, ``"m_ost_int8"``
-        ...) for a shipped model, or None for the shipped on-site model ``m_onsite_half``: its
-        int8 export with the ONNX backend on the CPU (``suture-seg bench`` times it on yours),
-        the float model otherwise.
+        exports, ``"m_ost_int8"`` ...) for a shipped model, or None for the shipped on-site model
+        ``m_onsite_half``: its int8 export with the ONNX backend on the CPU (``suture-seg bench``
+        times it on yours), the float model otherwise.
     backend : {"onnx", "torch"}
         ONNX Runtime or PyTorch.
     device : str
