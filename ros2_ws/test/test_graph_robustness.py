@@ -1083,7 +1083,9 @@ def test_graph_recovers_when_each_node_is_killed_and_restarted(graph: Graph, sam
     driver, pipeline = graph.driver, graph.pipeline
     outputs = {
         topics.LEFT_MASK: driver.watch(topics.LEFT_MASK),
+        topics.RIGHT_MASK: driver.watch(topics.RIGHT_MASK),
         topics.LEFT_SEQUENCE: driver.watch(topics.LEFT_SEQUENCE),
+        topics.RIGHT_SEQUENCE: driver.watch(topics.RIGHT_SEQUENCE),
         topics.GRASP_POSE: driver.grasp_poses,
         topics.TARGET_POSE: driver.target_poses,
     }
@@ -1094,12 +1096,19 @@ def test_graph_recovers_when_each_node_is_killed_and_restarted(graph: Graph, sam
         """Whether ``count`` frames published after ``since`` gave ``topic``."""
         return lambda: len({r.stamp_ns for r in outputs[topic]} & player.stamps_since(since)) >= count
 
-    def context() -> str:
-        return "\n" + "\n".join(timings) + pipeline.report(15)
+    def context(since: float | None = None) -> str:
+        """Timings, what each stage published for the frames played since ``since``, log tails."""
+        lines = list(timings)
+        if since is not None:
+            played = player.stamps_since(since)
+            counts = {topic: len({r.stamp_ns for r in got} & played) for topic, got in outputs.items()}
+            answered = ", ".join(f"{topic} {count}" for topic, count in counts.items())
+            lines.append(f"frames played since: {len(played)}; of them published on {answered}")
+        return "\n" + "\n".join(lines) + pipeline.report(15)
 
     began = time.monotonic()
     assert driver.spin_until(arrive(topics.TARGET_POSE, began), RECOVERY_TIMEOUT_S), (
-        f"no grasp and target poses for the frames played{context()}"
+        f"no grasp and target poses for the frames played{context(began)}"
     )
     timings.append(f"first target poses {time.monotonic() - began:.1f} s after the first frame")
 
@@ -1109,7 +1118,7 @@ def test_graph_recovers_when_each_node_is_killed_and_restarted(graph: Graph, sam
         assert (status := process.kill()) == -9, f"{node} exited with {status}, not by SIGKILL{context()}"
         if topic := UPSTREAM_OUTPUT.get(node):  # the nodes upstream of the dead one go on working
             assert driver.spin_until(arrive(topic, killed_at), RECOVERY_TIMEOUT_S), (
-                f"no {topic} for new frames while {node} was down{context()}"
+                f"no {topic} for new frames while {node} was down{context(killed_at)}"
             )
         else:
             driver.spin(2 * PLAY_PERIOD_S)
@@ -1124,7 +1133,7 @@ def test_graph_recovers_when_each_node_is_killed_and_restarted(graph: Graph, sam
         )
         for topic in (topics.GRASP_POSE, topics.TARGET_POSE):
             assert driver.spin_until(arrive(topic, restarted_at), RECOVERY_TIMEOUT_S), (
-                f"no {topic} for new frames after {node} was restarted{context()}"
+                f"no {topic} for new frames after {node} was restarted{context(restarted_at)}"
             )
         timings.append(
             f"{node}: killed, restarted {restarted_at - killed_at:.1f} s later, "
