@@ -198,7 +198,8 @@ class OrderingParams:
         metadata=described(
             "where a sequence passes by a loop or detour that its mask (the low mask where given) "
             "shows beside it, much longer than the sequence there, it is cut where it first joins "
-            "it, so that a grasp beyond is refused as on a thread too short (suture_ordering.skipped_loop)"
+            "it, or where the ends of a loop the mask broke off at its crossing come near it, so that "
+            "a grasp beyond is refused as on a thread too short (suture_ordering.skipped_loop)"
         ),
     )
     wide_arc_factor: float = field(

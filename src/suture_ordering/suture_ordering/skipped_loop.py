@@ -20,6 +20,11 @@ the sequence it stands beside. Two shapes count:
   reaches away from the sequence, and not cut by the image border (another strand that crosses
   the thread leaves it in a line: as long as it reaches).
 
+A loop the mask broke on both sides of its crossing does not join the corridor. Such a piece
+counts as joined where its two ends come within :data:`DETACHED_GAP_WIDTHS` thread widths of the
+corridor, when nothing else of it does (another thread running beside the sequence comes near it
+all along, not at two ends), and is then a ring or a detour as above.
+
 A piece's length is its area over the thread's width. :func:`skipped_loop_index` gives the
 sequence's index where the first such piece joins it; ``order_stereo`` cuts the view's sequence
 there (``StereoOrdering.cut``), so that the 3D stage refuses a grasp beyond it as on a thread too
@@ -53,6 +58,9 @@ DETOUR_EXTRA_PX = 12.0
 RING_MIN_LENGTH_PX = 32.0
 #: ... and at least this many times as long as it reaches away from where it joins the sequence.
 RING_LENGTH_RATIO = 2.2
+#: A ring that does not join the corridor counts when both its ends come this many thread widths
+#: near it (a crossing's gap in the mask: the other strand's width and a little more).
+DETACHED_GAP_WIDTHS = 2.5
 
 
 def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.0) -> int | None:
@@ -79,6 +87,7 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
     if large.size == 0:
         return None
     touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
+    near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
     tree = cKDTree(points)
     height, image_width = thread.shape
     first: int | None = None
@@ -87,8 +96,12 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
         box = (slice(top, top + box_height), slice(left, left + box_width))
         piece = labels[box] == label
         rows, cols = np.nonzero(piece & touching[box])
-        if rows.size == 0:
-            continue
+        detached = rows.size == 0
+        if detached:
+            ends = (piece & near[box]).astype(np.uint8)
+            if cv2.connectedComponents(ends, connectivity=8)[0] - 1 != 2:
+                continue
+            rows, cols = np.nonzero(ends)
         _, joined = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
         joined = np.sort(joined)
         length = area / width

@@ -1,8 +1,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """A sequence that passes by a loop the mask shows (suture_ordering.skipped_loop): found where a
-ring or a detour of the mask joins the sequence, and the sequence cut there by the ordering; a
-crossing strand, thread beside the sequence that is no longer than it, and a strand that leaves
-the image are not."""
+ring or a detour of the mask joins the sequence, or where a ring the mask broke on both sides of
+its crossing comes near it, and the sequence cut there by the ordering; a crossing strand, thread
+beside the sequence that is no longer than it, and a strand that leaves the image are not."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from suture_common.camera import StereoCamera
 from suture_ordering import OrderingParams, order_stereo
@@ -51,6 +52,22 @@ def test_a_detour_much_longer_than_the_sequence_beside_it_is_found() -> None:
     assert skipped_loop_index(_draw(STRAIGHT, shallow), STRAIGHT) is None
 
 
+def test_a_ring_the_mask_broke_on_both_sides_of_its_crossing_is_found() -> None:
+    """A loop of 25 px radius below row 240 whose mask stops 5 px short of the thread at both
+    ends (the segmenter lost it where it crosses the thread): found near u = 300. Another
+    thread running 6 px beside the sequence, and an arc of one that comes near it at one end
+    only, are not loops."""
+    ring = _ring((300, 268), 25, -52, 284)  # ends at 38 degrees either side of the top
+    index = skipped_loop_index(_draw(STRAIGHT, ring), STRAIGHT)
+    assert index is not None and abs(STRAIGHT[index, 0] - 300) <= 25
+    beside = [(200, 249), (400, 249)]
+    assert skipped_loop_index(_draw(STRAIGHT, beside), STRAIGHT) is None
+    hook = _ring((300, 268), 25, -52, 200)  # one end near the thread, the other 40 px from it
+    assert skipped_loop_index(_draw(STRAIGHT, hook), STRAIGHT) is None
+    far = _ring((300, 290), 25, -52, 284)  # the same ring 22 px lower: its ends are far from the thread
+    assert skipped_loop_index(_draw(STRAIGHT, far), STRAIGHT) is None
+
+
 def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     crossing = [(200, 60), (400, 420)]  # an X with another thread
     assert skipped_loop_index(_draw(STRAIGHT, crossing), STRAIGHT) is None
@@ -61,13 +78,21 @@ def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     assert skipped_loop_index(np.full((H, W), 255, np.uint8), STRAIGHT) is None  # a mask with no background
 
 
-def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by() -> None:
-    """A segmenter's masks of a simulated frame (fresh mixed set of seed 20261964, frame 482,
-    M-oST int8): the mask broke a pale loop 45 px across next to its crossing, the low mask kept
-    the rest of it, and both views' sequences went straight on past it. The grasp, 50 mm of arc
-    from the tip, lay 32 mm too far along the thread (24.8 mm off). Cut where the loop joins the
-    sequence, before the true grasp point's place: the 3D stage finds the thread too short."""
-    stored = np.load(Path(__file__).parent / "data" / "predicted_loop_passed_by.npz")
+@pytest.mark.parametrize(
+    ("stored_frame", "loop_at_px"),
+    [("predicted_loop_passed_by.npz", 110), ("predicted_loop_detached_at_its_crossing.npz", 245)],
+)
+def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by(stored_frame: str, loop_at_px: float) -> None:
+    """A segmenter's masks of simulated frames (M-oST int8), whose sequences in both views went
+    straight on past a loop. ``predicted_loop_passed_by``: fresh mixed set of seed 20261964,
+    frame 482; the mask broke a pale loop 45 px across next to its crossing, the low mask kept
+    the rest of it, and the grasp, 50 mm of arc from the tip, lay 32 mm too far along the thread
+    (24.8 mm off). ``predicted_loop_detached_at_its_crossing``: fresh mixed set of seed 20262018,
+    frame 467; a loop 100 px across meets the thread at a small angle, the masks lose it on both
+    sides of the crossing, and the grasp was 19.7 mm off. Cut where the loop meets the sequence,
+    before the loop (``loop_at_px`` of true arc from the tip): the 3D stage finds the thread too
+    short."""
+    stored = np.load(Path(__file__).parent / "data" / stored_frame)
     height, width = (int(n) for n in stored["shape"])
     masks = [
         np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
@@ -81,6 +106,6 @@ def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by() -> None:
     truth = stored["truth_left"][:, :2].astype(float)
     true_arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth, axis=0).T))])
     distance = np.hypot(*(truth - cut.left[-1]).T)
-    assert distance.min() < 3 and true_arc[np.argmin(distance)] < 110  # on our thread, before the loop
+    assert distance.min() < 3 and true_arc[np.argmin(distance)] < loop_at_px  # on our thread, before the loop
     assert np.hypot(*(off.left[-1] - truth[-1])).min() < 5  # without the cut: on past it to the end
     assert len(off.left) - len(cut.left) == cut.cut[0]
