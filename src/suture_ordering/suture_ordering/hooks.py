@@ -31,7 +31,7 @@ centre. A branch leaves the window where its end, or its thread extended to the 
 within the spur length plus 3 px of the window's edge (a thread cut slanting by the window thins
 to a skeleton that stops short of it). The search then starts from the walk's end with the walk as
 its path so far (:func:`follow`), so it neither goes back into the hook nor loses the thread's
-track.
+track, and with the thread's width read where the walk leaves.
 
 When (:func:`hook_start`, :func:`hook_after_search`): a hint with no free end within the tip
 radius; or, after the search from the free end nearest to the hint, when that end lies farther
@@ -892,21 +892,41 @@ def hook_start(
 def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
     """Advance ``branch`` (at the walk's first point) along the walk: a vertex wherever the walk
     has moved ``DENSE`` px from the last one (so the turn at a bend is kept), the last ``2 r_s``
-    px in steps of r_s so that the search goes on with the thread's track and turn."""
+    px in steps of r_s so that the search goes on with the thread's track and turn.
+
+    The steps carry the thread's width where the walk leaves (:func:`_leaving_width`): the search
+    takes a cross-section wider than ``wide_arc_factor`` times its widths so far for merged
+    threads and steps along one edge of it, so a width too small would hold it to an edge."""
     points = start.points
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
     step = float(context.scaled.step_radius)
+    width = _leaving_width(context, points, along, start.width)
     last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
     chosen, (last_u, last_v) = [], branch.vertices[-1].tolist()
     for k, (u, v) in enumerate(points[1:last_steps].tolist()):
         if math.hypot(u - last_u, v - last_v) >= DENSE:
             chosen.append(k + 1)
             last_u, last_v = u, v
-    advance_along(context, branch, points[chosen], start.width)
+    advance_along(context, branch, points[chosen], width)
     for mark in (along[-1] - step, along[-1]):
         point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
         if math.hypot(*(point - branch.vertices[-1])) >= 1.0:
-            advance(context, branch, point, start.width)
+            advance(context, branch, point, width)
+
+
+def _leaving_width(context: SearchContext, points: np.ndarray, along: np.ndarray, estimate: float) -> float:
+    """The thread's width (px) where the walk ``points`` leaves the hook's window, read as the
+    search reads cross-sections: the run of mask on the circle of radius r_s about the walk's end
+    that the walk came in by. ``estimate`` (from the distance transform, which reads a thread two
+    or three pixels wide as one) where there is no such run within 2 px of the walk."""
+    step = float(context.scaled.step_radius)
+    nodes = context.reader.nodes(points[-1], int(step), None)
+    if nodes is None:
+        return estimate
+    behind = points[min(int(np.searchsorted(along, along[-1] - step)), len(points) - 1)]
+    offsets = np.hypot(*(nodes.position - behind).T)
+    nearest = int(np.argmin(offsets))
+    return float(nodes.width[nearest]) if offsets[nearest] <= 2.0 else estimate
 
 
 def skipped_near_tip(mask: np.ndarray, points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

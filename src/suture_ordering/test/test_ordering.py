@@ -829,6 +829,37 @@ def test_the_walks_start_is_not_moved_onto_the_returning_arm_beside_the_tip():
     check_stored_stereo_frame("hooked_tip_beside_the_returning_arm.npz")
 
 
+def test_the_search_after_a_hook_walk_follows_a_thin_threads_centre_not_its_edge():
+    """A simulator frame (hooked, 640x480, true masks; seed 20262007, frame 62): a thread 2-3 px
+    wide leaves a loop at its tip. The walk through the loop handed the search a width of 1 px,
+    so every cross-section after it looked like merged threads and the search stepped along one
+    edge, the upper in one view and the lower in the other: 0.7 px off the centreline on
+    average, and on a stretch at 14 degrees to the rows the grasp came out 17.9 mm off. The
+    search now takes the width of the cross-section where the walk leaves."""
+    stored = np.load(Path(__file__).parent / "data" / "hooked_thin_thread_leaving_the_walk.npz")
+    height, width = (int(n) for n in stored["shape"])
+    left, right = (
+        np.unpackbits(stored[view])[: height * width].reshape(height, width) for view in ("left", "right")
+    )
+    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(width, height))
+    for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
+        sequence = np.asarray(sequence)[:, :2]
+        arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(sequence, axis=0).T))])
+        beyond_the_loop = sequence[arc > 100]
+        assert arc[-1] > 400
+        off = _distance_to_polyline(beyond_the_loop, truth.astype(float))
+        assert off.mean() < 0.35 and off.max() < 1.0, (off.mean(), off.max())
+
+
+def _distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """(N,) distance (px) of each point to the polyline (M, 2) (its segments, not only its vertices)."""
+    start, chord = polyline[:-1], np.diff(polyline, axis=0)
+    squared = np.maximum((chord**2).sum(axis=1), 1e-12)
+    along = ((points[:, None, :] - start[None]) * chord[None]).sum(axis=2) / squared
+    nearest = start[None] + np.clip(along, 0.0, 1.0)[..., None] * chord[None]
+    return np.hypot(*(points[:, None, :] - nearest).transpose(2, 0, 1)).min(axis=1)
+
+
 def test_right_views_tip_in_a_hook_takes_the_disparity_of_the_tips_own_neighbourhood():
     """A simulator frame (hooked, 1280x1024, true masks): the thread runs at 45 degrees, and the
     hook window's best shift traded 8 rows for 9 columns, so the right view's walk started on
