@@ -87,7 +87,7 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
     if large.size == 0:
         return None
     touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
-    near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
+    near: np.ndarray | None = None  # within DETACHED_GAP_WIDTHS of the corridor, once a piece needs it
     tree = cKDTree(points)
     height, image_width = thread.shape
     first: int | None = None
@@ -98,6 +98,8 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
         rows, cols = np.nonzero(piece & touching[box])
         detached = rows.size == 0
         if detached:
+            if near is None:
+                near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
             ends = (piece & near[box]).astype(np.uint8)
             if cv2.connectedComponents(ends, connectivity=8)[0] - 1 != 2:
                 continue
