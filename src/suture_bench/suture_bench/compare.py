@@ -6,9 +6,10 @@ change outcome both ways; a 400-frame set's ``within_5mm`` alone cannot tell a g
 churn. :func:`compare_records` pairs the per-frame records of two runs (``suture-eval --report
 DIR`` writes them to ``DIR/frames.json``) and counts the frames gained (a miss in the base run, a
 success in the new one) and lost, overall and by topology, with each changed frame's outcome in
-both runs, and the grasps more than 10 mm off in each. A frame's ``success`` is the evaluator's
-(``suture_bench.evaluate``): a grasp within 5 mm of a true grasp point that is not hidden, or a
-hidden one refused as not seen.
+both runs, and the grasps more than 10 mm off in each, listing the frames missed in both runs that
+came under or went over 10 mm (a refusal instead of a wrong grasp is such a change). A frame's
+``success`` is the evaluator's (``suture_bench.evaluate``): a grasp within 5 mm of a true grasp
+point that is not hidden, or a hidden one refused as not seen.
 
     suture-eval-compare out/base_report out/new_report [--json FILE]
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections import defaultdict
 from collections.abc import Sequence
@@ -38,13 +40,17 @@ class CompareError(ValueError):
 class Comparison:
     """Frame-by-frame difference of two runs: ``by_topology`` (base successes, new successes,
     frames scored), grasps more than :data:`WRONG_GRASP_MM` off in each, and ``gained``/``lost``:
-    (index, topology, base outcome, new outcome) of the frames whose success changed."""
+    (index, topology, base outcome, new outcome) of the frames whose success changed;
+    ``wrong_gone``/``wrong_new``: the same of the frames missed in both runs that were more than
+    :data:`WRONG_GRASP_MM` off in the base run only / in the new run only."""
 
     by_topology: dict[str, tuple[int, int, int]] = field(default_factory=dict)
     base_wrong: int = 0
     new_wrong: int = 0
     gained: list[tuple[int, str, str, str]] = field(default_factory=list)
     lost: list[tuple[int, str, str, str]] = field(default_factory=list)
+    wrong_gone: list[tuple[int, str, str, str]] = field(default_factory=list)
+    wrong_new: list[tuple[int, str, str, str]] = field(default_factory=list)
 
     @property
     def base_successes(self) -> int:
@@ -76,6 +82,8 @@ class Comparison:
             },
             "gained": rows(self.gained),
             "lost": rows(self.lost),
+            "wrong_gone": rows(self.wrong_gone),
+            "wrong_new": rows(self.wrong_new),
         }
 
 
@@ -129,11 +137,14 @@ def compare_records(base: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]
         counts[topology][0] += successes[0]
         counts[topology][1] += successes[1]
         counts[topology][2] += 1
-        comparison.base_wrong += _wrong(old_record)
-        comparison.new_wrong += _wrong(new_record)
+        wrong = (_wrong(old_record), _wrong(new_record))
+        comparison.base_wrong += wrong[0]
+        comparison.new_wrong += wrong[1]
+        change = (index, topology, outcome(old_record), outcome(new_record))
         if successes[0] != successes[1]:
-            change = (index, topology, outcome(old_record), outcome(new_record))
             (comparison.gained if successes[1] else comparison.lost).append(change)
+        elif wrong[0] != wrong[1]:
+            (comparison.wrong_new if wrong[1] else comparison.wrong_gone).append(change)
     comparison.by_topology = {name: (base, new, total) for name, (base, new, total) in sorted(counts.items())}
     if comparison.frames == 0:
         raise CompareError("no frame is scored in the reports (true 3D path and grasp point, and 'success')")
@@ -156,7 +167,14 @@ def format_comparison(comparison: Comparison) -> str:
     ]
     for name, (base, new, frames) in comparison.by_topology.items():
         lines.append(f"  {name:<18} {base:>5} -> {new:<5} of {frames}")
-    for title, changes in (("gained", comparison.gained), ("lost", comparison.lost)):
+    limit = f"{WRONG_GRASP_MM:.0f} mm"
+    sections = (
+        ("gained", comparison.gained),
+        ("lost", comparison.lost),
+        (f"missed in both, no longer more than {limit} off", comparison.wrong_gone),
+        (f"missed in both, now more than {limit} off", comparison.wrong_new),
+    )
+    for title, changes in sections:
         if changes:
             lines.append(f"{title}:")
             lines += [f"  {index:>5} {topology:<16} {old} -> {new}" for index, topology, old, new in changes]
@@ -178,7 +196,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CompareError as error:
         print(f"suture-eval-compare: {error}", file=sys.stderr)
         return 1
-    print(format_comparison(comparison))
+    try:
+        print(format_comparison(comparison), flush=True)
+    except BrokenPipeError:  # the reader went away (e.g. piped into head): nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     if args.json:
         Path(args.json).write_text(json.dumps(comparison.as_dict(), indent=2))
     return 0
