@@ -830,7 +830,9 @@ class _Walked:
 @dataclass(frozen=True)
 class HookStart:
     """The walk from the cut tip through a hook: ``points`` (N, 2) float64 (u, v) ~1 px apart,
-    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves;
+    from the tip to the window's rim; ``width``: the thread's width (px) where it leaves, from the
+    distance transform (a thread 2-3 px wide reads as 1 px; :func:`follow` reads it again as the
+    search does and keeps this only where it finds no cross-section);
     ``alternatives``: the walks that competed; ``other_choice``: where both views' evidence
     chose the walk, the index of the other view's walk paired with it (:func:`hook_walk`),
     else None."""
