@@ -140,11 +140,13 @@ def compare_records(base: Sequence[dict[str, Any]], new: Sequence[dict[str, Any]
         wrong = (_wrong(old_record), _wrong(new_record))
         comparison.base_wrong += wrong[0]
         comparison.new_wrong += wrong[1]
-        change = (index, topology, outcome(old_record), outcome(new_record))
         if successes[0] != successes[1]:
-            (comparison.gained if successes[1] else comparison.lost).append(change)
+            listed = comparison.gained if successes[1] else comparison.lost
         elif wrong[0] != wrong[1]:
-            (comparison.wrong_new if wrong[1] else comparison.wrong_gone).append(change)
+            listed = comparison.wrong_new if wrong[1] else comparison.wrong_gone
+        else:
+            continue
+        listed.append((index, topology, outcome(old_record), outcome(new_record)))
     comparison.by_topology = {name: (base, new, total) for name, (base, new, total) in sorted(counts.items())}
     if comparison.frames == 0:
         raise CompareError("no frame is scored in the reports (true 3D path and grasp point, and 'success')")

@@ -74,6 +74,7 @@ from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
+from suture_ordering.nodes import MaskReader
 from suture_ordering.params import ScaledParams
 from suture_ordering.path import Branch, advance, advance_along
 from suture_ordering.tip import extend_to_end, free_ends
@@ -902,7 +903,9 @@ def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
     points = start.points
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
     step = float(context.scaled.step_radius)
-    width = _leaving_width(context, points, along, start.width)
+    marks = np.searchsorted(along, (along[-1] - step, along[-1]))
+    behind, end = points[np.minimum(marks, len(points) - 1)]
+    width = _leaving_width(context.reader, points[-1], behind, int(step), start.width)
     last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
     chosen, (last_u, last_v) = [], branch.vertices[-1].tolist()
     for k, (u, v) in enumerate(points[1:last_steps].tolist()):
@@ -910,22 +913,22 @@ def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
             chosen.append(k + 1)
             last_u, last_v = u, v
     advance_along(context, branch, points[chosen], width)
-    for mark in (along[-1] - step, along[-1]):
-        point = points[min(int(np.searchsorted(along, mark)), len(points) - 1)]
+    for point in (behind, end):
         if math.hypot(*(point - branch.vertices[-1])) >= 1.0:
             advance(context, branch, point, width)
 
 
-def _leaving_width(context: SearchContext, points: np.ndarray, along: np.ndarray, estimate: float) -> float:
-    """The thread's width (px) where the walk ``points`` leaves the hook's window, read as the
-    search reads cross-sections: the run of mask on the circle of radius r_s about the walk's end
-    that the walk came in by. ``estimate`` (from the distance transform, which reads a thread two
-    or three pixels wide as one) where there is no such run within 2 px of the walk."""
-    step = float(context.scaled.step_radius)
-    nodes = context.reader.nodes(points[-1], int(step), None)
+def _leaving_width(
+    reader: MaskReader, end: np.ndarray, behind: np.ndarray, radius: int, estimate: float
+) -> float:
+    """The thread's width (px) where a walk leaves the hook's window at ``end``, read as the
+    search reads cross-sections: the run of mask on the circle of ``radius`` (r_s) about ``end``
+    that the walk came in by, the one nearest ``behind`` (the walk's point ``radius`` px of arc
+    back). ``estimate`` (from the distance transform, which reads a thread two or three pixels
+    wide as one) where there is no such run within 2 px of ``behind``."""
+    nodes = reader.nodes(end, radius, None)
     if nodes is None:
         return estimate
-    behind = points[min(int(np.searchsorted(along, along[-1] - step)), len(points) - 1)]
     offsets = np.hypot(*(nodes.position - behind).T)
     nearest = int(np.argmin(offsets))
     return float(nodes.width[nearest]) if offsets[nearest] <= 2.0 else estimate
