@@ -35,8 +35,10 @@ track, and with the thread's width read where the walk leaves.
 
 When (:func:`hook_start`, :func:`hook_after_search`): a hint with no free end within the tip
 radius; or, after the search from the free end nearest to the hint, when that end lies farther
-than ``NEAR`` px from the hint, when the search left pixels of the tip's thread near the tip
-unvisited (:func:`skipped_near_tip`), or when it came back near the tip to where it had passed.
+than ``NEAR`` px from the hint, when the mask branches nearer to the tip than one step of the
+search (:func:`branched_near_tip`; the first step has no heading to choose a branch by), when the
+search left pixels of the tip's thread near the tip unvisited (:func:`skipped_near_tip`), or when
+it came back near the tip to where it had passed.
 A walk is taken when it returns to a place it passed (a hook); where the search left pixels
 unvisited, or came back to where it had passed, any walk out of the window is: arms that touch
 without merging thin to one skeleton line along the thread (a walk that passes no place twice),
@@ -74,7 +76,7 @@ from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
 from suture_ordering.context import SearchContext
-from suture_ordering.nodes import MaskReader
+from suture_ordering.nodes import MaskReader, circle_samples
 from suture_ordering.params import ScaledParams
 from suture_ordering.path import Branch, advance, advance_along
 from suture_ordering.tip import extend_to_end, free_ends
@@ -105,6 +107,9 @@ PASSING_WIDTH = 1.4
 DENSE = 1.0
 #: Unvisited pixels (at 640 px) of the tip's thread near the tip that suggest a hook.
 SKIPPED = 6.0
+#: Runs of mask on the circle of radius r_s about the cut tip from which the search's first
+#: step is a guess (a junction lies nearer than one step), so the walk is compared.
+BRANCHED_RUNS = 2
 #: Added to a walk's turns (rad) when it goes round a loop against the merged arms' sides.
 SIDE_PENALTY = math.pi
 #: Side offsets (px) below this tell nothing.
@@ -1002,16 +1007,33 @@ def hook_after_search(
 ) -> HookStart | None:
     """The walk through a hook at ``hint`` when the search from the free end ``tip`` suggests
     one: that end lies farther than ``NEAR`` from the hint (the bend of merged arms, the cut
-    tip in the stroke), the search came back near the tip to where it had passed, or it left
-    the tip's neighbourhood partly unvisited (:func:`skipped_near_tip`). In the last two cases
-    any walk out of the window is taken: the search crossed from arm to arm where the skeleton
-    goes on along one line. None: no hook; the search's sequence stands."""
+    tip in the stroke), the thread branches within one step of the tip
+    (:func:`branched_near_tip`: the first step had no heading to choose a branch by), the
+    search came back near the tip to where it had passed, or it left the tip's neighbourhood
+    partly unvisited (:func:`skipped_near_tip`). In the last two cases any walk out of the
+    window is taken: the search crossed from arm to arm where the skeleton goes on along one
+    line; in the first two only a walk that returns to a place it passed (a hook). None: no
+    hook; the search's sequence stands."""
     far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
     skipped = skipped_near_tip(mask, points, tip, scaled)
     returns = _returns_near_tip(points, tip, scaled)
-    if not (far or skipped or returns):
+    if not (far or skipped or returns or branched_near_tip(mask, tip, scaled)):
         return None
     return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide, other=other)
+
+
+def branched_near_tip(mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
+    """Whether the circle of radius r_s (the search's step) about ``tip`` ((2,) (u, v)) crosses
+    ``mask`` ((H, W), nonzero = thread) in ``BRANCHED_RUNS`` or more separate runs: the thread
+    forks, or another strand passes, nearer to the cut tip than one step, so the search's
+    first step, which has no heading yet, picks a branch by its mask evidence alone."""
+    offsets, _ = circle_samples(scaled.step_radius)
+    where = np.rint(np.asarray(tip, dtype=np.float64) + offsets[:, 0, :]).astype(np.int64)
+    height, width = mask.shape
+    inside = (where[:, 0] >= 0) & (where[:, 0] < width) & (where[:, 1] >= 0) & (where[:, 1] < height)
+    on = np.zeros(len(where), dtype=bool)
+    on[inside] = mask[where[inside, 1], where[inside, 0]] > 0
+    return int(np.count_nonzero(on & ~np.roll(on, 1))) >= BRANCHED_RUNS
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:

@@ -888,6 +888,16 @@ def test_views_whose_own_walks_go_round_a_hooks_loop_different_ways_take_both_vi
     check_stored_stereo_frame("hooked_views_disagree_round_the_loop.npz", coverage=0.9)
 
 
+def test_a_tip_a_step_from_its_loops_crossing_is_walked_round_the_loop_the_way_it_points():
+    """A simulator frame (hooked, 640x480, true masks): the cut end runs 6 px into the crossing
+    of a small loop at the tip, where the loop's two sides and the thread leave. The search's
+    first step has no heading, so it took the side of the loop that leaves the crossing
+    nearest to the tip, against the thread's way round (the sequence went backwards). The mask
+    branching within one step of the tip now has the walk through the hook compared, and the
+    least-turning walk goes on the way the cut end points."""
+    check_stored_stereo_frame("hooked_tip_a_step_from_its_loops_crossing.npz")
+
+
 def check_stored_stereo_frame(name: str, coverage: float = 0.95) -> None:
     """Order a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint, true
     sequences; the simulator's default camera of that size) and check that both views follow
