@@ -188,7 +188,7 @@ class ReconstructionParams:
         ),
     )
     max_grasp_uncertainty_mm: float = field(
-        default=15.0,
+        default=11.0,
         metadata=described(
             "largest estimated uncertainty (mm) of the grasp point that is still published; a grasp "
             "point less certain is refused (UncertainGraspError)",
