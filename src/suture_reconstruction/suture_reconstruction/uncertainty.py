@@ -45,10 +45,10 @@ uncertainty exceeds ``max_grasp_uncertainty_mm``. The constants and the default 
 were set on simulated sets (mixed with predicted masks, the hard topologies with true and
 predicted masks), where the terms rank the grasps that the views disagree on; a tip hook that
 both views' sequences cut across the same way leaves no trace in the stereo pair and is not
-caught here. The default, 11 mm, sits above the uncertainty of good grasps through a tight hook
-at the tip (up to about 10.7 mm there, most of it disagreement: the smoothed curve cuts the bend
-by 1-3 px) and below that of grasps whose depth along a stretch parallel to the rows rested on
-no measurement (11.8 and 14.7 mm for two such grasps 19 and 17 mm off).
+caught here. The default, 11 mm, lies between the uncertainty of good grasps through a tight
+hook at the tip (up to about 10.7 mm, most of it disagreement: the smoothed curve cuts the bend
+by 1-3 px) and that of grasps whose depth along a stretch parallel to the rows rests on no
+measurement (docs/experiments.md, 2026-11-30, noon).
 
 :func:`unexplained_arc_mm` reads the converse of the disagreement term: every seen sample of
 either view's sequence between the cut tip and the grasp point is the image of some point of the
