@@ -75,6 +75,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
+from suture_ordering.compiled import circle_runs
 from suture_ordering.context import SearchContext
 from suture_ordering.nodes import MaskReader, circle_samples
 from suture_ordering.params import ScaledParams
@@ -910,7 +911,7 @@ def follow(context: SearchContext, branch: Branch, start: HookStart) -> None:
     step = float(context.scaled.step_radius)
     marks = np.searchsorted(along, (along[-1] - step, along[-1]))
     behind, end = points[np.minimum(marks, len(points) - 1)]
-    width = _leaving_width(context.reader, points[-1], behind, int(step), start.width)
+    width = _leaving_width(context.reader, end, behind, int(step), start.width)
     last_steps = int(np.searchsorted(along, along[-1] - 2 * step))
     chosen, (last_u, last_v) = [], branch.vertices[-1].tolist()
     for k, (u, v) in enumerate(points[1:last_steps].tolist()):
@@ -1031,9 +1032,10 @@ def branched_near_tip(mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -
     where = np.rint(np.asarray(tip, dtype=np.float64) + offsets[:, 0, :]).astype(np.int64)
     height, width = mask.shape
     inside = (where[:, 0] >= 0) & (where[:, 0] < width) & (where[:, 1] >= 0) & (where[:, 1] < height)
-    on = np.zeros(len(where), dtype=bool)
+    on = np.zeros(len(where), dtype=np.float32)
     on[inside] = mask[where[inside, 1], where[inside, 0]] > 0
-    return int(np.count_nonzero(on & ~np.roll(on, 1))) >= BRANCHED_RUNS
+    centres, _ = circle_runs(on, 1.0, math.inf, 0.0)
+    return len(centres) >= BRANCHED_RUNS
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
