@@ -797,11 +797,7 @@ def test_a_crossing_strand_that_ends_in_the_hooks_window_is_not_walked():
     At the crossing's four arms that arm runs on straight into one as wide as itself that leaves
     the window, as our thread does into the fourth: another strand's arm, which the walk need
     not pass."""
-    stored = np.load(Path(__file__).parent / "data" / "predicted_crossing_in_the_hook_window.npz")
-    height, width = (int(n) for n in stored["shape"])
-    size = height * width
-    left, right = (np.unpackbits(stored[view])[:size].reshape(height, width) for view in ("left", "right"))
-    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(width, height))
+    ordering, stored = order_stored_frame("predicted_crossing_in_the_hook_window.npz")
     for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
         check_follows(sequence[:150, :2], truth.astype(float), tolerance=3.5, coverage=0.0)
 
@@ -836,12 +832,7 @@ def test_the_search_after_a_hook_walk_follows_a_thin_threads_centre_not_its_edge
     edge, the upper in one view and the lower in the other: 0.7 px off the centreline on
     average, and on a stretch at 14 degrees to the rows the grasp came out 17.9 mm off. The
     search now takes the width of the cross-section where the walk leaves."""
-    stored = np.load(Path(__file__).parent / "data" / "hooked_thin_thread_leaving_the_walk.npz")
-    height, width = (int(n) for n in stored["shape"])
-    left, right = (
-        np.unpackbits(stored[view])[: height * width].reshape(height, width) for view in ("left", "right")
-    )
-    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(width, height))
+    ordering, stored = order_stored_frame("hooked_thin_thread_leaving_the_walk.npz")
     for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
         sequence = np.asarray(sequence)[:, :2]
         arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(sequence, axis=0).T))])
@@ -898,15 +889,21 @@ def test_a_tip_a_step_from_its_loops_crossing_is_walked_round_the_loop_the_way_i
     check_stored_stereo_frame("hooked_tip_a_step_from_its_loops_crossing.npz")
 
 
-def check_stored_stereo_frame(name: str, coverage: float = 0.95) -> None:
-    """Order a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint, true
-    sequences; the simulator's default camera of that size) and check that both views follow
-    their true sequences within 3 px, over ``coverage`` of their length."""
+def order_stored_frame(name: str) -> tuple:
+    """The ordering of a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint,
+    true sequences) with the simulator's default camera of that size, and the stored arrays."""
     stored = np.load(Path(__file__).parent / "data" / name)
     height, width = (int(n) for n in stored["shape"])
     size = height * width
     left, right = (np.unpackbits(stored[view])[:size].reshape(height, width) for view in ("left", "right"))
-    ordering = order_stereo(left, right, stored["hint"], StereoCamera.default(width, height))
+    return order_stereo(left, right, stored["hint"], StereoCamera.default(width, height)), stored
+
+
+def check_stored_stereo_frame(name: str, coverage: float = 0.95) -> None:
+    """Order a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint, true
+    sequences; the simulator's default camera of that size) and check that both views follow
+    their true sequences within 3 px, over ``coverage`` of their length."""
+    ordering, stored = order_stored_frame(name)
     check_follows(ordering.left, stored["truth_left"].astype(float), tolerance=3.0, coverage=coverage)
     check_follows(ordering.right, stored["truth_right"].astype(float), tolerance=3.0, coverage=coverage)
 
