@@ -13,7 +13,7 @@ over a merged stretch the sequence passes twice.
 The walk follows the mask's skeleton within ``HOOK_WINDOW`` RoI radii Υ of the tip
 (:func:`hook_walk`). The skeleton becomes a graph of branches between free ends, junctions, the
 tip and the window's rim. A walk starts at the tip (or at a free end within ``NEAR`` px of it),
-ends on the rim, passes every branch of the hook (each at most twice; a branch shorter than
+ends on the rim, passes every branch of the hook (each at most twice, a loop once; a branch shorter than
 ``SPUR`` px to a free end is a spur of the thinning and may be left out, and so may an arm of
 another thread that crosses ours and ends inside the window where the mask loses it: a branch to a
 free end that runs on straight across its junction into a branch as wide as itself,
@@ -251,8 +251,9 @@ def _skeleton_graph(skeleton: np.ndarray, tip: np.ndarray, rim: np.ndarray) -> _
 
 def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) -> list[list[tuple[int, bool]]]:
     """Every walk from the tip to the rim that passes each of the hook's branches once or twice
-    (those of ``passing``, other strands' arms, at most) and turns back only at free ends (at
-    most :data:`MAX_WALKS` of them): lists of (branch index, reversed)."""
+    (those of ``passing``, other strands' arms, at most; a loop, a branch from a junction back to
+    itself, once: a thread does not coil twice over the same pixels) and turns back only at free
+    ends (at most :data:`MAX_WALKS` of them): lists of (branch index, reversed)."""
     branches = graph.branches
     incident: dict[int, list[tuple[int, bool]]] = {}
     for k, branch in enumerate(branches):
@@ -286,7 +287,7 @@ def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) ->
         else:
             options = [o for o in incident.get(node, []) if not walk or o != (walk[-1][0], not walk[-1][1])]
         for k, rev in options:
-            if uses[k] >= 2:
+            if uses[k] >= (1 if branches[k].a == branches[k].b else 2):  # a loop is gone round once
                 continue
             uses[k] += 1
             walk.append((k, rev))
