@@ -13,10 +13,10 @@ over a merged stretch the sequence passes twice.
 The walk follows the mask's skeleton within ``HOOK_WINDOW`` RoI radii Υ of the tip
 (:func:`hook_walk`). The skeleton becomes a graph of branches between free ends, junctions, the
 tip and the window's rim. A walk starts at the tip (or at a free end within ``NEAR`` px of it),
-ends on the rim, passes every branch of the hook (each at most twice, a loop once; a branch shorter than
-``SPUR`` px to a free end is a spur of the thinning and may be left out, and so may an arm of
-another thread that crosses ours and ends inside the window where the mask loses it: a branch to a
-free end that runs on straight across its junction into a branch as wide as itself,
+ends on the rim, passes every branch of the hook (each at most twice, a loop once; a branch
+shorter than ``SPUR`` px to a free end is a spur of the thinning and may be left out, and so may
+an arm of another thread that crosses ours and ends inside the window where the mask loses it: a
+branch to a free end that runs on straight across its junction into a branch as wide as itself,
 :func:`_passing_strands`; merged arms down to a hairpin's bend are twice as wide as the arm that
 leaves them), turns back only at free ends (at the mask's end, past the skeleton's), and goes on
 at a junction through any branch. Of all such walks the one that turns least where it passes a

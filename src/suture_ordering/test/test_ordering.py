@@ -892,10 +892,10 @@ def test_a_tip_a_step_from_its_loops_crossing_is_walked_round_the_loop_the_way_i
 def test_a_hooks_loop_is_gone_round_once():
     """A simulator frame (hard set, hooked, 640x480; the low masks of a retrained M-oST): the cut
     end enters a loop of about 75 px 6 px from the tip, through a crossing whose two junctions
-    lie 3 px apart. The walk through the hook could pass the loop twice; the way round once
-    against the thread's turn was set apart by the side rule, so the walk coiled round the loop
-    twice in both views and the grasp landed one loop's arc (12 mm) short. A thread does not
-    coil twice over the same pixels: a loop is passed once."""
+    lie 3 px apart. The walk through the hook could pass the loop twice: the way round once
+    that the thread turns was set apart by the side rule, the other way turned more than twice
+    round, so the walk coiled round the loop twice in both views and the grasp landed one loop's
+    arc (12 mm) short. A thread does not coil twice over the same pixels: a loop is passed once."""
     ordering, stored = order_stored_frame("predicted_hook_loop_gone_round_once.npz")
     for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
         ordered, true = (np.linalg.norm(np.diff(line, axis=0), axis=1).sum() for line in (sequence, truth))
