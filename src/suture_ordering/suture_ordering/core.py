@@ -237,7 +237,7 @@ def _order_view(
             raise
         return _with_tip_gap(_search(prepared, end, "hint", started), tip), prepared, None
     result = _search(prepared, start, "hint", started)
-    hook = hook_after_search(clean, tip, start, result.points, scaled)
+    hook = hook_after_search(clean, prepared.searcher.context.reader, tip, start, result.points, scaled)
     if hook is None:
         return result, prepared, None
     return _search(prepared, tip, "hint", started, hook), prepared, hook
@@ -546,7 +546,8 @@ def _right_view(
     result = _search(prepared, start, "epipolar", started)
     if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
         return result, None
-    hook = hook_after_search(clean, start, start, result.points, scaled, guide, other)
+    reader = prepared.searcher.context.reader
+    hook = hook_after_search(clean, reader, start, start, result.points, scaled, guide, other)
     if hook is None:
         return result, None
     return _search(prepared, start, "epipolar", started, hook), hook.other_choice

@@ -75,9 +75,8 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
-from suture_ordering.compiled import circle_runs
 from suture_ordering.context import SearchContext
-from suture_ordering.nodes import MaskReader, circle_samples
+from suture_ordering.nodes import MaskReader
 from suture_ordering.params import ScaledParams
 from suture_ordering.path import Branch, advance, advance_along
 from suture_ordering.tip import extend_to_end, free_ends
@@ -1000,6 +999,7 @@ def _pieces_near(polyline: np.ndarray, shape: tuple[int, int], thickness: int) -
 
 def hook_after_search(
     mask: np.ndarray,
+    reader: MaskReader,
     hint: np.ndarray,
     tip: np.ndarray,
     points: np.ndarray,
@@ -1014,29 +1014,25 @@ def hook_after_search(
     search came back near the tip to where it had passed, or it left the tip's neighbourhood
     partly unvisited (:func:`skipped_near_tip`). In the last two cases any walk out of the
     window is taken: the search crossed from arm to arm where the skeleton goes on along one
-    line; in the first two only a walk that returns to a place it passed (a hook). None: no
-    hook; the search's sequence stands."""
+    line; in the first two only a walk that returns to a place it passed (a hook). ``reader``:
+    the search's :class:`~suture_ordering.nodes.MaskReader` of ``mask``. None: no hook; the
+    search's sequence stands."""
     far = float(np.hypot(*(np.asarray(tip) - np.asarray(hint)))) > NEAR * scaled.scale
     skipped = skipped_near_tip(mask, points, tip, scaled)
     returns = _returns_near_tip(points, tip, scaled)
-    if not (far or skipped or returns or branched_near_tip(mask, tip, scaled)):
+    if not (far or skipped or returns or branched_near_tip(reader, tip, scaled)):
         return None
     return hook_start(mask, hint, scaled, require_return=not (skipped or returns), guide=guide, other=other)
 
 
-def branched_near_tip(mask: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
+def branched_near_tip(reader: MaskReader, tip: np.ndarray, scaled: ScaledParams) -> bool:
     """Whether the circle of radius r_s (the search's step) about ``tip`` ((2,) (u, v)) crosses
-    ``mask`` ((H, W), nonzero = thread) in ``BRANCHED_RUNS`` or more separate runs: the thread
-    forks, or another strand passes, nearer to the cut tip than one step, so the search's
+    the mask in ``BRANCHED_RUNS`` or more separate runs, read as the search reads its
+    cross-sections (``reader``: the search's :class:`~suture_ordering.nodes.MaskReader`): the
+    thread forks, or another strand passes, nearer to the cut tip than one step, so the search's
     first step, which has no heading yet, picks a branch by its mask evidence alone."""
-    offsets, _ = circle_samples(scaled.step_radius)
-    where = np.rint(np.asarray(tip, dtype=np.float64) + offsets[:, 0, :]).astype(np.int64)
-    height, width = mask.shape
-    inside = (where[:, 0] >= 0) & (where[:, 0] < width) & (where[:, 1] >= 0) & (where[:, 1] < height)
-    on = np.zeros(len(where), dtype=np.float32)
-    on[inside] = mask[where[inside, 1], where[inside, 0]] > 0
-    centres, _ = circle_runs(on, 1.0, math.inf, 0.0)
-    return len(centres) >= BRANCHED_RUNS
+    nodes = reader.nodes(np.asarray(tip, dtype=np.float64), scaled.step_radius, None)
+    return nodes is not None and len(nodes.position) >= BRANCHED_RUNS
 
 
 def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams) -> bool:
