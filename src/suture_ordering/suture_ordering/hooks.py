@@ -47,7 +47,8 @@ while the search steps across from one arm to the other where they touch.
 Right view (:func:`stereo_tip`): a cut tip inside a hook is no free end on the epipolar band
 either. The disparity of the tip's neighbourhood is the shift along the row that lays the
 left mask's window around the left tip best onto the right mask, within the disparity range;
-the right view's walk starts at the shifted left tip. It is used when the left view started
+the right view's walk starts at the shifted left tip, and its smoothing keeps that start
+(:func:`_smoothed`; the left tip was smoothed once already). It is used when the left view started
 through a hook, and when the band holds no free end but the shifted tip lies on the mask.
 Where the arms lie on top of each other, the skeleton is the same both ways round a loop at
 their end and the least-turning rule may go round against the thread; with a *guide* (the left
@@ -768,9 +769,21 @@ def hook_walk(
     revisits = len({places[n] for n in nodes}) < len(nodes)
     # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
     # becomes the bend's centre.
-    path = uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
+    path = _smoothed(path, keep_start=guide is not None)
     alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), tuple(against), best)
     return _Walked(path + offset, revisits, alternatives, other_choice)
+
+
+def _smoothed(path: np.ndarray, keep_start: bool) -> np.ndarray:
+    """``path`` ((N, 2) float64) averaged over ``SMOOTHING`` points. The average pulls the first
+    point inward along the path (about 0.9 px); with ``keep_start`` the path is first continued
+    past its start by its own points mirrored through it, so that a straight start stays put:
+    a walk from the other view's tip (already smoothed once) starts at that tip's match."""
+    lead = SMOOTHING // 2
+    if not keep_start or len(path) <= lead:
+        return uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
+    mirrored = 2 * path[:1] - path[lead:0:-1]
+    return uniform_filter1d(np.vstack([mirrored, path]), SMOOTHING, axis=0, mode="nearest")[lead:]
 
 
 def _both_views(

@@ -902,6 +902,19 @@ def test_a_hooks_loop_is_gone_round_once():
         assert abs(ordered - true) < 10.0, (ordered, true)  # a second time round would add ~75 px
 
 
+def test_the_right_views_hook_walk_starts_at_the_left_tips_match():
+    """A simulator frame (hooked, 640x480, true masks): the cut tip lies inside a stroke of merged
+    arms, so each view's walk starts at the skeleton's pixel nearest its hint and is moved out
+    along the arm; the left view's start lies 3.8 px from its true tip. The right view's walk
+    starts at the left tip's match. Its smoothing used to pull its start inward a second time
+    (the left tip was smoothed once already), 5.1 px from the true tip: past the ordering's
+    tolerance of 5 px. It now starts where the left tip matches."""
+    ordering, stored = order_stored_frame("hooked_right_tip_inside_merged_arms.npz")
+    views = ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"]))
+    left_off, right_off = (float(np.hypot(*(sequence[0] - truth[0]))) for sequence, truth in views)
+    assert right_off < min(5.0, left_off + 0.5), (left_off, right_off)
+
+
 def order_stored_frame(name: str) -> tuple:
     """The ordering of a stored stereo frame (test/data/NAME: packed masks of ``shape``, hint,
     true sequences) with the simulator's default camera of that size, and the stored arrays."""
