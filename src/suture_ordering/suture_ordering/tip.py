@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from skimage.morphology import skeletonize
+from skimage.morphology import skeletonize, thin
 
 from suture_ordering.errors import NoFreeEndError, TipNotOnThreadError, TipOutsideImageError
 
@@ -39,7 +39,19 @@ _NEIGHBOURS = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], dtype=np.float32)
 
 def free_ends(mask: np.ndarray) -> np.ndarray:
     """(K, 2) int (u, v) end points of the skeleton of ``mask`` ((H, W) uint8 0/1 or bool)."""
-    skeleton = skeletonize(np.asarray(mask, dtype=bool)).astype(np.uint8)
+    return _end_pixels(skeletonize(np.asarray(mask, dtype=bool)))
+
+
+def thinned_free_ends(mask: np.ndarray) -> np.ndarray:
+    """(K, 2) int (u, v) end points of ``mask`` ((H, W) uint8 0/1 or bool) thinned by
+    :func:`skimage.morphology.thin`. :func:`free_ends`' skeleton (Zhang's thinning) can lose half
+    of a thin diagonal thread from its end (36 px of a thread drawn four pixels a row whose end
+    tapers); this thinning keeps the end, with more spurs on a wide or ragged mask."""
+    return _end_pixels(thin(np.asarray(mask, dtype=bool)))
+
+
+def _end_pixels(skeleton: np.ndarray) -> np.ndarray:
+    skeleton = skeleton.astype(np.uint8)
     count = cv2.filter2D(skeleton, cv2.CV_8U, _NEIGHBOURS, borderType=cv2.BORDER_CONSTANT)
     v, u = np.nonzero((skeleton == 1) & (count == 1))
     return np.column_stack([u, v])
@@ -218,18 +230,22 @@ def check_hint(hint: np.ndarray, width: int, height: int, view: str | None = Non
 
 
 def tip_from_hint(mask: np.ndarray, hint: np.ndarray, radius: float, view: str | None = None) -> np.ndarray:
-    """The free end of ``mask`` nearest to ``hint`` within ``radius`` px, as (2,) float64 (u, v)."""
+    """The free end of ``mask`` nearest to ``hint`` within ``radius`` px, as (2,) float64 (u, v),
+    moved out to the mask's end (:func:`extend_to_end`). Where the skeleton has no end that near,
+    the ends of the mask thinned otherwise (:func:`thinned_free_ends`: a thin diagonal thread's
+    end that the skeleton lost)."""
     height, width = mask.shape
     u, v = check_hint(hint, width, height, view)
     margin = int(np.ceil(radius)) + 8  # skeleton context beyond the search radius
     u0, u1 = max(0, int(u) - margin), min(width, int(u) + margin + 1)
     v0, v1 = max(0, int(v) - margin), min(height, int(v) + margin + 1)
     window = mask[v0:v1, u0:u1]
-    ends = free_ends(window) + np.array([u0, v0])
-    distance = np.hypot(ends[:, 0] - u, ends[:, 1] - v)
-    near = distance <= radius
-    if near.any():
-        return extend_to_end(mask, ends[near][np.argmin(distance[near])], radius)
+    for find in (free_ends, thinned_free_ends):
+        ends = find(window) + np.array([u0, v0])
+        distance = np.hypot(ends[:, 0] - u, ends[:, 1] - v)
+        near = distance <= radius
+        if near.any():
+            return extend_to_end(mask, ends[near][np.argmin(distance[near])], radius)
     rows, cols = np.nonzero(window)
     if rows.size == 0 or np.min(np.hypot(cols + u0 - u, rows + v0 - v)) > radius:
         raise TipNotOnThreadError(

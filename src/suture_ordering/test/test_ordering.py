@@ -31,7 +31,7 @@ from suture_ordering import (
 from suture_ordering.cleaning import fill_holes_remove_specks
 from suture_ordering.core import _tip_arcs
 from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
-from suture_ordering.tip import right_tip_across_gap, tip_across_gap, tip_from_hint
+from suture_ordering.tip import free_ends, right_tip_across_gap, tip_across_gap, tip_from_hint
 
 W, H = 640, 480
 SAMPLE_BAG = Path(__file__).resolve().parents[3] / "bags" / "sample"
@@ -586,6 +586,22 @@ def hairpin() -> np.ndarray:
     angle = np.linspace(-math.pi / 2, -3 * math.pi / 2, 12)
     bend = np.column_stack([240 + 1.5 * np.cos(angle), 241.5 + 1.5 * np.sin(angle)])
     return np.vstack([arm, bend, line((240, 243), (560, 243))])
+
+
+def test_a_thin_diagonal_threads_end_eaten_back_by_thinning_is_found():
+    """A thread 3 px wide at 45 degrees (four pixels a row, as the simulator draws a thin
+    straight thread) whose cut end tapers to three and two pixels: thinning eats its skeleton back
+    36 px from the end, out of the hint's reach (12 px), and the ordering used to refuse a
+    straight thread with NoFreeEndError. The end whose thread runs out to the hint is taken."""
+    mask = np.zeros((80, 80), dtype=np.uint8)
+    for row in range(10, 60):
+        mask[row, row - 6 : row - 2] = 1
+    mask[60, 54:57] = 1
+    mask[61, 55:57] = 1
+    cut_end = np.array([55.5, 61.0])
+    assert np.hypot(*(free_ends(mask) - cut_end).T).min() > 12.0
+    tip = tip_from_hint(mask, cut_end + np.array([1.0, 0.5]), 12.0)
+    assert np.hypot(*(tip - cut_end)) < 2.0
 
 
 def test_hairpin_with_merged_arms_is_ordered_from_the_tip_inside_the_stroke():
