@@ -592,7 +592,8 @@ def test_a_thin_diagonal_threads_end_eaten_back_by_thinning_is_found():
     """A thread 3 px wide at 45 degrees (four pixels a row, as the simulator draws a thin
     straight thread) whose cut end tapers to three and two pixels: thinning eats its skeleton back
     36 px from the end, out of the hint's reach (12 px), and the ordering used to refuse a
-    straight thread with NoFreeEndError. The end whose thread runs out to the hint is taken."""
+    straight thread with NoFreeEndError. Where the skeleton has no end near the hint, the ends of
+    the other thinning (skimage's thin, which keeps that end) are read."""
     mask = np.zeros((80, 80), dtype=np.uint8)
     for row in range(10, 60):
         mask[row, row - 6 : row - 2] = 1
