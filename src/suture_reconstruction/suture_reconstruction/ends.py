@@ -90,8 +90,10 @@ def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
 
 def _held_row_sines(uv: np.ndarray, window: int) -> np.ndarray:
     """(K,) the smallest sine of the angle to the image rows of the polyline ``uv`` (K, 2) px over
-    the ``window`` points round each point: the steepness a stretch holds there."""
-    return minimum_filter1d(row_sines(uv), window, mode="nearest")
+    the ``window`` points round each point: the steepness a stretch holds there. A point nearer an
+    end than half the window holds none (0): past the end there is no thread, and a curl of the
+    last few points would otherwise pass for a steep stretch over half the window."""
+    return minimum_filter1d(row_sines(uv), window, mode="constant", cval=0.0)
 
 
 def match_unanchored_ends(

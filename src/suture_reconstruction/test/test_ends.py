@@ -64,6 +64,17 @@ def test_the_anchor_is_the_steepest_stretch_held_over_5_mm():
     assert anchor_row_angle_deg(fit_curve(bent, 0.0), camera) > 20.0
 
 
+def test_a_curl_of_the_last_2_mm_is_no_anchor():
+    """A thread at 3 degrees to the rows whose far end curls steeply over its last 2 mm (as the
+    last few points of a sequence may, where the mask ends): a steep stretch must hold over 5 mm,
+    and at the thread's end only 2 mm of it is thread. It used to count over half the window and
+    make the thread anchored, so that neither its ends' disparity was checked nor matched."""
+    camera = StereoCamera.default(640, 480)
+    curled = straight_thread(3.0)
+    curled[-40:, 1] += np.linspace(0.0, 0.0015, 40)  # the last 2 mm at about 37 degrees
+    assert anchor_row_angle_deg(fit_curve(curled, 0.0), camera) < 10.0
+
+
 def test_only_an_unanchored_thread_with_an_end_off_the_images_is_refused():
     refuse_contradicted_ends((None, None), 3.0, 1.5)  # no evidence
     refuse_contradicted_ends((1.0, -1.2), 3.0, 1.5)
