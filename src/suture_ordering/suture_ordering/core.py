@@ -546,8 +546,9 @@ def _right_view(
     result = _search(prepared, start, "epipolar", started)
     if not left_hooked:  # the same thread: no hook at the left tip, none at the right one
         return result, None
-    reader = prepared.searcher.context.reader
-    hook = hook_after_search(clean, reader, start, start, result.points, scaled, guide, other)
+    hook = hook_after_search(
+        clean, prepared.searcher.context.reader, start, start, result.points, scaled, guide, other
+    )
     if hook is None:
         return result, None
     return _search(prepared, start, "epipolar", started, hook), hook.other_choice

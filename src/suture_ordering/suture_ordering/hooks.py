@@ -660,7 +660,8 @@ def hook_walk(
     ``spur``: branches to a free end shorter than this are thinning spurs; ``near``: a free end
     this near to ``tip`` is the start; ``guide``: (K, 2) pixels of the same thread from its tip
     (the other view's, shifted by the disparity), or None; with it, only the walks within
-    ``GUIDE_MARGIN`` px of the one that strays least from it compete; ``scale``: the image
+    ``GUIDE_MARGIN`` px of the one that strays least from it compete, and the walk taken keeps
+    its first point through the smoothing (:func:`_smoothed`); ``scale``: the image
     width / 640 (the guide's tolerances). Also whether the walk comes back to a node it passed,
     and the walks that competed (:class:`Alternatives`).
 
