@@ -74,7 +74,7 @@ from scipy.ndimage import uniform_filter1d
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
-from skimage.morphology import skeletonize
+from skimage.morphology import skeletonize, thin
 
 from suture_ordering.context import SearchContext
 from suture_ordering.nodes import MaskReader
@@ -100,6 +100,9 @@ HOOK_WINDOW = 3.0
 SPUR = 3.0
 #: A free end this near (px at 640 px) to the tip's pixel is the cut tip.
 NEAR = 5.0
+#: A free end whose thread runs on along its direction to the window's rim within this many
+#: steps is the rim's: thinning eats a 2 px thread at 45 degrees back from any end it has.
+RIM_REACH = 3.0
 #: A branch to a free end that runs on across a junction within this turn (rad) into a branch
 #: no thinner than it by this factor is another strand's arm (:func:`_passing_strands`).
 PASSING_TURN = math.radians(30.0)
@@ -371,6 +374,25 @@ def _places(graph: _Graph, spur: float) -> dict[int, int]:
         if branch.length < spur and "end" not in kinds and "rim" not in kinds:
             place[root(branch.a)] = root(branch.b)
     return {node: root(node) for node in graph.kind}
+
+
+def _runs_to_rim(
+    own: np.ndarray, rim: np.ndarray, end: np.ndarray, outward: np.ndarray, reach: float
+) -> bool:
+    """Whether the thread of ``own`` ((h, w) bool) runs on from the skeleton's free end ``end``
+    ((2,) int (u, v)) ahead of it (on the side ``outward`` points to) to a ``rim`` pixel within
+    ``reach`` px: a thin thread at 45 degrees cut by the window's edge, whose skeleton thinning
+    ate back from that edge by more than a step."""
+    height, width = own.shape
+    r = math.ceil(reach)
+    u0, v0 = max(0, int(end[0]) - r), max(0, int(end[1]) - r)
+    u1, v1 = min(width, int(end[0]) + r + 1), min(height, int(end[1]) + r + 1)
+    yy, xx = np.mgrid[v0:v1, u0:u1]
+    du, dv = xx - end[0], yy - end[1]
+    ahead = own[v0:v1, u0:u1] & (np.hypot(du, dv) <= reach) & (du * outward[0] + dv * outward[1] >= 0)
+    _, pieces = cv2.connectedComponents(ahead.astype(np.uint8), connectivity=8)
+    piece = pieces[int(end[1]) - v0, int(end[0]) - u0]
+    return bool(piece and (rim[v0:v1, u0:u1] & (pieces == piece)).any())
 
 
 def _along_mask(mask: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
@@ -654,7 +676,11 @@ def hook_walk(
 ) -> _Walked | None:
     """(N, 2) float64 (u, v) pixels from the skeleton pixel nearest to ``tip`` through the hook
     to the rim of the window of ``window_radius`` px around it, or None (no walk: the thread
-    does not leave the window, or the skeleton there is not a hook's).
+    does not leave the window, or the skeleton there is not a hook's). Zhang's thinning eats a
+    2 px thread at 45 degrees back from its ends, by half the line's length: where no skeleton
+    pixel lies within ``near`` of ``tip``, the window is thinned otherwise
+    (:func:`skimage.morphology.thin`), and a free end whose thread runs on ahead of it to the
+    window's edge is the edge's (:func:`_runs_to_rim`).
 
     ``mask``: (H, W) bool or 0/1, the cleaned mask; ``step``: chord length (px) of the turns;
     ``spur``: branches to a free end shorter than this are thinning spurs; ``near``: a free end
@@ -694,6 +720,12 @@ def hook_walk(
     if su.size < 2:
         return None
     distance = np.hypot(su + u0 - tip[0], sv + v0 - tip[1])
+    if distance.min() > near:  # Zhang's thinning ate a thin diagonal end back: thin it otherwise
+        thinned = thin(own)
+        tv, tu = np.nonzero(thinned)
+        reach = np.hypot(tu + u0 - tip[0], tv + v0 - tip[1])
+        if tu.size >= 2 and reach.min() <= near:
+            skeleton, su, sv, distance = thinned, tu, tv, reach
     start = int(np.argmin(distance))
     ends = free_ends(skeleton)
     if len(ends):  # the cut tip at a free end next to the pixel: start there
@@ -714,15 +746,16 @@ def hook_walk(
             if (graph.kind[node] != "end" and not at_tip) or branch.length < spur:
                 continue
             end = branch.pixels[0] if first else branch.pixels[-1]
-            axis = None
-            if at_tip:  # outward along the branch; the cut tip's end may be eaten back far
-                inner = _within(
-                    (branch.pixels if first else branch.pixels[::-1]).astype(np.float64), 0.0, 2 * step
-                )
-                axis = end - inner.mean(axis=0)
+            inner = _within(
+                (branch.pixels if first else branch.pixels[::-1]).astype(np.float64), 0.0, 2 * step
+            )
+            outward = end - inner.mean(axis=0)
+            axis = outward if at_tip else None  # the cut tip's end may be eaten back far
             outer = extend_to_end(own, end.astype(np.float64), 2 * step if at_tip else step, axis)
             if at_tip:
                 outer = _along_mask(own, end.astype(np.float64), outer)
+            elif _runs_to_rim(own, rim, end, outward, RIM_REACH * step):
+                graph.kind[node] = "rim"
             u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
             if rim[v, u] and not at_tip:  # the thread cut by the window's edge, slanting
                 graph.kind[node] = "rim"

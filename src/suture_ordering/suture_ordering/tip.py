@@ -292,7 +292,8 @@ def right_tip(
 
     ``disparity_range`` = (d_min, d_max) px; the end must satisfy
     ``|v_r - v_l| <= row_tolerance`` and ``d_min - row_tolerance <= u_l - u_r <= d_max + row_tolerance``;
-    ``radius`` as in :func:`extend_to_end`.
+    ``radius`` as in :func:`extend_to_end`. Where the skeleton has no such end, the ends of the
+    mask thinned otherwise (:func:`thinned_free_ends`), as :func:`tip_from_hint` reads them.
     """
     height, width = mask.shape
     u, v = float(left_tip[0]), float(left_tip[1])
@@ -307,19 +308,20 @@ def right_tip(
     band = f"rows {v - tol:.0f}..{v + tol:.0f}, disparity {d_min:.0f}..{d_max:.0f} px"
     if u1 <= u0 or v1 <= v0:
         raise TipNotOnThreadError(f"the epipolar band of the left tip ({band}) lies outside the image", view)
-    ends = free_ends(mask[v0:v1, u0:u1]) + np.array([u0, v0])
-    near = (
-        (np.abs(ends[:, 1] - v) <= reach)
-        & (u - ends[:, 0] >= d_min - reach)
-        & (u - ends[:, 0] <= d_max + reach)
-    )
-    ends = np.array([extend_to_end(mask, e, radius) for e in ends[near]]).reshape(-1, 2)
-    dv = np.abs(ends[:, 1] - v)
-    disparity = u - ends[:, 0]
-    ok = (dv <= tol) & (disparity >= d_min - tol) & (disparity <= d_max + tol)
-    if ok.any():
-        candidates = ends[ok]
-        return candidates[np.argmin(dv[ok] + 1e-3 * np.abs(disparity[ok] - (d_min + d_max) / 2))]
+    for find in (free_ends, thinned_free_ends):
+        ends = find(mask[v0:v1, u0:u1]) + np.array([u0, v0])
+        near = (
+            (np.abs(ends[:, 1] - v) <= reach)
+            & (u - ends[:, 0] >= d_min - reach)
+            & (u - ends[:, 0] <= d_max + reach)
+        )
+        ends = np.array([extend_to_end(mask, e, radius) for e in ends[near]]).reshape(-1, 2)
+        dv = np.abs(ends[:, 1] - v)
+        disparity = u - ends[:, 0]
+        ok = (dv <= tol) & (disparity >= d_min - tol) & (disparity <= d_max + tol)
+        if ok.any():
+            candidates = ends[ok]
+            return candidates[np.argmin(dv[ok] + 1e-3 * np.abs(disparity[ok] - (d_min + d_max) / 2))]
     on_band = mask[
         max(0, int(v - tol)) : int(v + tol) + 1,
         max(0, int(u - d_max - tol)) : max(0, int(u - d_min + tol) + 1),
