@@ -936,19 +936,18 @@ def test_the_right_views_hook_walk_starts_at_the_left_tips_match():
 def test_a_hooks_thin_diagonal_tail_is_walked_from_its_end(name):
     """Simulator frames (hooked, 640x480, true masks): the cut end is a straight tail 2 px wide
     at 45 degrees into a loop (into_loop) or a hairpin (hairpin). In the right view Zhang's
-    skeleton loses the whole tail, 17 px, up to the loop's crossing: the right view's walk
-    through the hook started at that crossing (17 px from the tip), or, 6 px from it, stopped
-    after 106 of its 513 px, and the tip check refused both frames. Each view now starts at its
-    cut tip and follows its thread."""
+    skeleton loses the whole tail, 17 px, up to the loop's crossing; a walk through the hook from
+    that skeleton starts at the crossing (into_loop) or 6 px from the tip and stops after 106 of
+    513 px (hairpin). Each view must start at its cut tip and follow its thread."""
     check_stored_stereo_frame(name)
 
 
 def test_a_thin_diagonal_thread_cut_by_the_hook_window_leaves_it():
     """A simulator frame (hooked, 640x480, true masks): a hairpin at the cut tip whose arms touch
     its thread, which leaves as a 2 px line at 45 degrees. Zhang's skeleton of the hook's window
-    eats that line back from the window's edge by 10 px, so in the right view its branch ended
-    inside the window, no walk left the window, and the frame was refused (NoFreeEndError). A
-    free end whose thread runs on ahead to the window's rim now counts as the rim's."""
+    eats that line back from the window's edge by 10 px, so in the right view its branch ends
+    inside the window. A free end whose thread runs on ahead to the window's rim is the rim's:
+    the walk leaves the window there, and both views follow their threads."""
     check_stored_stereo_frame("hooked_diagonal_thread_cut_by_window.npz")
 
 
