@@ -100,8 +100,8 @@ HOOK_WINDOW = 3.0
 SPUR = 3.0
 #: A free end this near (px at 640 px) to the tip's pixel is the cut tip.
 NEAR = 5.0
-#: A free end whose thread runs on along its direction to the window's rim within this many
-#: steps is the rim's: thinning eats a 2 px thread at 45 degrees back from any end it has.
+#: A free end whose thread runs on ahead of it to the window's rim within this many steps is
+#: the rim's (:func:`_runs_to_rim`): thinning eats a 2 px thread at 45 degrees back from any end.
 RIM_REACH = 3.0
 #: A branch to a free end that runs on across a junction within this turn (rad) into a branch
 #: no thinner than it by this factor is another strand's arm (:func:`_passing_strands`).
