@@ -754,11 +754,10 @@ def hook_walk(
             outer = extend_to_end(own, end.astype(np.float64), 2 * step if at_tip else step, axis)
             if at_tip:
                 outer = _along_mask(own, end.astype(np.float64), outer)
-            elif _runs_to_rim(own, rim, end, outward, RIM_REACH * step):
-                graph.kind[node] = "rim"
-            u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
-            if rim[v, u] and not at_tip:  # the thread cut by the window's edge, slanting
-                graph.kind[node] = "rim"
+            else:  # the thread cut by the window's edge, slanting, or thin and eaten back from it
+                u, v = np.clip(np.rint(outer).astype(int), 0, np.array(own.shape[::-1]) - 1)
+                if rim[v, u] or _runs_to_rim(own, rim, end, outward, RIM_REACH * step):
+                    graph.kind[node] = "rim"
             reach = float(np.hypot(*(outer - end)))
             if reach >= 1.0:
                 fractions = np.arange(1, math.ceil(reach) + 1)[:, None] / math.ceil(reach)

@@ -591,9 +591,9 @@ def hairpin() -> np.ndarray:
 def test_a_thin_diagonal_threads_end_eaten_back_by_thinning_is_found():
     """A thread 3 px wide at 45 degrees (four pixels a row, as the simulator draws a thin
     straight thread) whose cut end tapers to three and two pixels: thinning eats its skeleton back
-    36 px from the end, out of the hint's reach (12 px), and the ordering used to refuse a
-    straight thread with NoFreeEndError. Where the skeleton has no end near the hint, the ends of
-    the other thinning (skimage's thin, which keeps that end) are read."""
+    36 px from the end, out of the hint's reach (12 px). Where the skeleton has no end near the
+    hint, the ends of the other thinning (skimage's thin, which keeps that end) are read, and the
+    tip is found at the cut end, not refused with NoFreeEndError."""
     mask = np.zeros((80, 80), dtype=np.uint8)
     for row in range(10, 60):
         mask[row, row - 6 : row - 2] = 1
@@ -923,9 +923,9 @@ def test_the_right_views_hook_walk_starts_at_the_left_tips_match():
     """A simulator frame (hooked, 640x480, true masks): the cut tip lies inside a stroke of merged
     arms, so each view's walk starts at the skeleton's pixel nearest its hint and is moved out
     along the arm; the left view's start lies 3.8 px from its true tip. The right view's walk
-    starts at the left tip's match. Its smoothing used to pull its start inward a second time
-    (the left tip was smoothed once already), 5.1 px from the true tip: past the ordering's
-    tolerance of 5 px. It now starts where the left tip matches."""
+    starts at the left tip's match, which was smoothed once already: its own smoothing must not
+    pull that start inward a second time (5.1 px from the true tip, past the ordering's tolerance
+    of 5 px)."""
     ordering, stored = order_stored_frame("hooked_right_tip_inside_merged_arms.npz")
     views = ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"]))
     left_off, right_off = (float(np.hypot(*(sequence[0] - truth[0]))) for sequence, truth in views)

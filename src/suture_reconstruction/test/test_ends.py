@@ -67,8 +67,8 @@ def test_the_anchor_is_the_steepest_stretch_held_over_5_mm():
 def test_a_curl_of_the_last_2_mm_is_no_anchor():
     """A thread at 3 degrees to the rows whose far end curls steeply over its last 2 mm (as the
     last few points of a sequence may, where the mask ends): a steep stretch must hold over 5 mm,
-    and at the thread's end only 2 mm of it is thread. It used to count over half the window and
-    make the thread anchored, so that neither its ends' disparity was checked nor matched."""
+    and at the thread's end only 2 mm of it is thread. Counted over half the window, it would
+    make the thread anchored, so that neither its ends' disparity is checked nor matched."""
     camera = StereoCamera.default(640, 480)
     curled = straight_thread(3.0)
     curled[-40:, 1] += np.linspace(0.0, 0.0015, 40)  # the last 2 mm at about 37 degrees
