@@ -76,6 +76,7 @@ from suture_reconstruction.ends import (
     end_disparity_gaps_px,
     match_unanchored_ends,
     refuse_contradicted_ends,
+    sequence_anchor_deg,
 )
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
 from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
@@ -502,7 +503,7 @@ def reconstruct(
     refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)
     refuse_arc_along_view(arc_image_ratio(curve, camera, params.grasp_arc_length), params.max_arc_image_ratio)
     if images is not None:
-        anchor_deg = anchor_row_angle_deg(curve, camera)
+        anchor_deg = min(anchor_row_angle_deg(curve, camera), sequence_anchor_deg(left, disparity, camera))
         if anchor_deg < ANCHOR_ROW_DEG:
             gaps = end_disparity_gaps_px(images, left, curve, camera)
             refuse_contradicted_ends(gaps, anchor_deg, params.max_end_disparity_gap_px)

@@ -21,10 +21,13 @@ stops because the image does) along the same row of the right image, within
 at each end. A window along the thread alone would not do: shifted along a thread parallel to
 the rows, it matches itself. :func:`refuse_contradicted_ends` raises
 :class:`~suture_reconstruction.errors.EndDisparityError` when the thread has no steep stretch
-(:func:`anchor_row_angle_deg`) and the images put an end more than ``max_end_disparity_gap_px``
-from where the reconstruction has it. A thread that crosses the rows somewhere is not checked: its
-depth is measured there, and the end matches, which are weak on a faint thread on blurred tissue,
-would only add false refusals.
+and the images put an end more than ``max_end_disparity_gap_px`` from where the reconstruction has
+it. The steepest stretch is read on the 3D curve (:func:`anchor_row_angle_deg`) and on the left
+sequence (:func:`sequence_anchor_deg`, the refinement's reading), and the smaller counts: the curve
+smooths the sequence, so near :data:`ANCHOR_ROW_DEG` the two can fall either side of it, and a
+thread the refinement took for nowhere steep must not escape the check. A thread that crosses
+the rows somewhere is not checked: its depth is measured there, and the end matches, which are
+weak on a faint thread on blurred tissue, would only add false refusals.
 
 Such a thread can still run along the rows for most of its length from an end, so that the end's
 depth rests on that end's pair, carried over tens of millimetres to the nearest steep stretch: a
@@ -97,6 +100,33 @@ def anchor_row_angle_deg(curve: ArcLengthCurve, camera: StereoCamera) -> float:
     return float(np.degrees(np.arcsin(min(float(held.max()), 1.0))))
 
 
+def sequence_anchor_deg(left: Resampled, disparity: Disparity, camera: StereoCamera) -> float:
+    """The largest angle (deg) to the image rows that the left sequence holds over
+    :data:`ANCHOR_ARC_M` of arc at its observed samples (arc read in pixels at the thread's median
+    disparity), as :func:`match_unanchored_ends` reads it; 0.0 with fewer than two supported samples.
+
+    ``left``: the left sequence resampled every 1 px with its ``observed`` flags; ``disparity``: the
+    fused disparity along it. The 3D curve smooths the sequence, so near :data:`ANCHOR_ROW_DEG` the
+    two readings (this and :func:`anchor_row_angle_deg`) can fall either side of it.
+    """
+    if np.count_nonzero(left.observed & disparity.supported) < 2:
+        return 0.0
+    held, _ = _sequence_steepness(left, disparity, camera)
+    held = held[left.observed]
+    return float(np.degrees(np.arcsin(min(float(held.max()), 1.0)))) if held.size else 0.0
+
+
+def _sequence_steepness(
+    left: Resampled, disparity: Disparity, camera: StereoCamera
+) -> tuple[np.ndarray, float]:
+    """(K,) :func:`_held_row_sines` of the left sequence over :data:`ANCHOR_ARC_M`, and the pixels
+    per metre of arc at the thread's median disparity (over its observed, supported samples)."""
+    supported = left.observed & disparity.supported
+    px_per_m = float(np.median(disparity.value[supported])) / camera.baseline
+    window = max(round(ANCHOR_ARC_M * px_per_m), 1)
+    return _held_row_sines(left.points[:, :2], window), px_per_m
+
+
 def _held_row_sines(uv: np.ndarray, window: int) -> np.ndarray:
     """(K,) the smallest sine of the angle to the image rows of the polyline ``uv`` (K, 2) px over
     the ``window`` points round each point: the steepness a stretch holds there. A point nearer an
@@ -133,10 +163,8 @@ def match_unanchored_ends(
     supported = np.flatnonzero(left.observed & disparity.supported)
     if supported.size < 2:
         return None
-    px_per_m = float(np.median(disparity.value[supported])) / camera.baseline
-    window = max(round(ANCHOR_ARC_M * px_per_m), 1)
-    steep = _held_row_sines(points, window) >= np.sin(np.radians(ANCHOR_ROW_DEG))
-    anchored = np.flatnonzero(steep & left.observed)
+    held, px_per_m = _sequence_steepness(left, disparity, camera)
+    anchored = np.flatnonzero((held >= np.sin(np.radians(ANCHOR_ROW_DEG))) & left.observed)
     lever = END_LEVER_M * px_per_m
     unanchored = []
     if anchored.size == 0 or anchored[0] - supported[0] >= lever:
@@ -209,8 +237,9 @@ def refuse_contradicted_ends(
     gaps_px: tuple[float | None, float | None], anchor_deg: float, max_gap_px: float
 ) -> None:
     """Raise EndDisparityError when the thread has no stretch steeper than :data:`ANCHOR_ROW_DEG`
-    (``anchor_deg``, :func:`anchor_row_angle_deg`) and an end's gap (``gaps_px``, tip and far end,
-    from :func:`end_disparity_gaps_px`; None: no evidence) exceeds ``max_gap_px``."""
+    (``anchor_deg``: the smaller of :func:`anchor_row_angle_deg` and :func:`sequence_anchor_deg`)
+    and an end's gap (``gaps_px``, tip and far end, from :func:`end_disparity_gaps_px`; None: no
+    evidence) exceeds ``max_gap_px``."""
     if anchor_deg >= ANCHOR_ROW_DEG:
         return
     for end, gap in zip(("cut tip", "far end"), gaps_px, strict=True):

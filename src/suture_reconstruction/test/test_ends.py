@@ -9,9 +9,14 @@ import numpy as np
 import pytest
 
 from suture_common.camera import StereoCamera
-from suture_reconstruction import EndDisparityError, ReconstructionParams, reconstruct
+from suture_reconstruction import EndDisparityError, ReconstructionParams, core, reconstruct
 from suture_reconstruction.curve import fit_curve
-from suture_reconstruction.ends import anchor_row_angle_deg, match_unanchored_ends, refuse_contradicted_ends
+from suture_reconstruction.ends import (
+    anchor_row_angle_deg,
+    match_unanchored_ends,
+    refuse_contradicted_ends,
+    sequence_anchor_deg,
+)
 from suture_reconstruction.pairing import DisparitySmoothing, Pairs, regularise_disparity
 from suture_reconstruction.photometric import prepare_images, refine_disparity
 from suture_reconstruction.sequences import resample
@@ -62,6 +67,36 @@ def test_the_anchor_is_the_steepest_stretch_held_over_5_mm():
     bent = straight_thread(3.0)
     bent[:200, 1] += np.linspace(0.006, 0.0, 200)  # its first 10 mm at about 30 degrees
     assert anchor_row_angle_deg(fit_curve(bent, 0.0), camera) > 20.0
+
+
+def test_the_sequence_reads_the_same_anchor_as_the_curve_on_a_straight_thread(exact_views):
+    camera = StereoCamera.default(640, 480)
+    for angle in (3.0, 30.0):
+        samples = resample(exact_views(camera, straight_thread(angle))[0], 1.0, 10.0)
+        flat = np.full(len(samples.arc), float(camera.disparity(DEPTH)))
+        fit = regularise_disparity(
+            len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
+        )
+        assert sequence_anchor_deg(samples, fit, camera) == pytest.approx(angle, abs=0.5)
+
+
+def test_a_thread_either_reading_finds_nowhere_steep_is_checked_at_its_ends(
+    exact_views, textured_pair, monkeypatch
+):
+    """The 3D curve smooths the sequence, so near 10 degrees the curve's reading of the steepest
+    stretch and the sequence's, which the refinement goes by, can fall either side of it. A thread
+    whose sequence holds no steep stretch has its ends' depth from their pairs (or from the images),
+    and is checked at its ends even where its curve reads one (here the curve's reading is set to
+    12 degrees). Checked by the curve's reading alone, an along_rows frame (sequence 8.1 degrees,
+    curve 10.9) went unchecked with its tip 5 px of disparity off and its grasp 13.5 mm off."""
+    camera = StereoCamera.default(640, 480)
+    curve = straight_thread(3.0, wave=0.0003)
+    left, right = exact_views(camera, curve)
+    images = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
+    higher = right - np.array([0.0, 0.3])
+    monkeypatch.setattr(core, "anchor_row_angle_deg", lambda curve, camera: 12.0)
+    with pytest.raises(EndDisparityError, match=r"the steepest: \d\.\d deg.*cut tip -2\.\d px of disparity"):
+        reconstruct(left, higher, camera, images=images)
 
 
 def test_a_curl_of_the_last_2_mm_is_no_anchor():
