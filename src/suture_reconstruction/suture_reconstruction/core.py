@@ -247,7 +247,7 @@ class ReconstructionParams:
             "the cut tip or the far end away from the reconstruction (2 px: about 8 mm of depth at "
             "100 mm with fx 520 px and a 5 mm baseline); farther, the masks' ends or rows disagree "
             "between the views and the carried depth is wrong (EndDisparityError; only checked with "
-            "images); an end the images place 1 px to this far away takes its disparity from them",
+            "images)",
             (0.0, 1000.0),
         ),
     )
@@ -481,9 +481,7 @@ def reconstruct(
             pairs,
             params.disparity,
             params.photometric,
-            end_matcher=lambda fused, prepared: match_unanchored_ends(
-                prepared, left, fused, camera, params.max_end_disparity_gap_px
-            ),
+            end_matcher=lambda fused, prepared: match_unanchored_ends(prepared, left, fused, camera),
         )
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)

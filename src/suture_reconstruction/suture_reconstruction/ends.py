@@ -38,12 +38,6 @@ nearest steep stretch lies at least :data:`END_LEVER_M` of arc away, and the ref
 end's pair, with the weight of its most confident match: there the images, not the masks, say
 where the end is.
 
-A thread with no steep stretch at all has its depth from its two ends' pairs, and a mask a pixel
-wider on one side or cut short in one view moves them, and the whole thread's depth with them,
-while the views still agree. Its ends are matched too, and fused where the images put an end
-:data:`UNANCHORED_MIN_GAP_PX` to ``max_end_disparity_gap_px`` from the pairs: nearer, the two agree
-within the match's own noise and the pairs are kept; farther, the check above refuses the thread.
-
 Units: metres for 3D points, pixels in the images, degrees for angles.
 """
 
@@ -80,9 +74,6 @@ BORDER_PX = 12.0
 #: An end whose nearest stretch steeper than ANCHOR_ROW_DEG lies at least this far (m of arc)
 #: along the thread rests its depth on the end's pair, and is matched in the images.
 END_LEVER_M = 0.012
-#: On a thread with no steep stretch, the images' end is fused only where it lies at least this far
-#: (px of disparity) from the masks' pairs: nearer, both agree within the match's own noise.
-UNANCHORED_MIN_GAP_PX = 1.0
 #: The matching of an end's window: it holds the termination, searched about the given disparity.
 END_WINDOW = PhotometricParams(
     search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
@@ -140,7 +131,6 @@ def match_unanchored_ends(
     left: Resampled,
     disparity: Disparity,
     camera: StereoCamera,
-    max_gap_px: float,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The images' disparity at each end of a thread whose depth there rests on the end's pair.
 
@@ -153,11 +143,9 @@ def match_unanchored_ends(
     disparity), and it lies away from the image border. Its :data:`END_SAMPLES` outermost
     supported samples are matched along the rows with the window that holds the termination
     (:func:`end_disparity_gaps_px`' window), within :data:`END_SEARCH_PX` of ``disparity``.
-    On a thread with no steep stretch both ends qualify, each only where the median of its
-    matches lies :data:`UNANCHORED_MIN_GAP_PX` to ``max_gap_px`` from ``disparity``
-    (``ReconstructionParams.max_end_disparity_gap_px``; farther, :func:`refuse_contradicted_ends`
-    refuses the thread). Returns (rows (E,) int, disparities (E,) px) of the matched samples, or
-    None where no end qualifies or none matched :data:`MIN_END_MATCHES` samples.
+    Returns (rows (E,) int, disparities (E,) px) of the matched samples, or None where no end
+    qualifies or none matched :data:`MIN_END_MATCHES` samples. A thread with no steep stretch
+    at all is left to :func:`refuse_contradicted_ends`.
     """
     points = left.points[:, :2]
     supported = np.flatnonzero(left.observed & disparity.supported)
@@ -165,11 +153,13 @@ def match_unanchored_ends(
         return None
     held, px_per_m = _sequence_steepness(left, disparity, camera)
     anchored = np.flatnonzero((held >= np.sin(np.radians(ANCHOR_ROW_DEG))) & left.observed)
+    if anchored.size == 0:
+        return None
     lever = END_LEVER_M * px_per_m
     unanchored = []
-    if anchored.size == 0 or anchored[0] - supported[0] >= lever:
+    if anchored[0] - supported[0] >= lever:
         unanchored.append((supported[:END_SAMPLES], supported[0]))
-    if anchored.size == 0 or supported[-1] - anchored[-1] >= lever:
+    if supported[-1] - anchored[-1] >= lever:
         unanchored.append((supported[-END_SAMPLES:], supported[-1]))
     windows = [index for index, outermost in unanchored if not _at_border(points[outermost], camera)]
     if not windows:
@@ -180,14 +170,9 @@ def match_unanchored_ends(
         matches = match_along_rows(
             *prepared, points[index], tangents[index], disparity.value[index], END_WINDOW
         )
-        if matches.matched.sum() < MIN_END_MATCHES:
-            continue
-        found = matches.disparity[matches.matched]
-        gap = abs(float(np.median(found - disparity.value[index][matches.matched])))
-        if anchored.size == 0 and not UNANCHORED_MIN_GAP_PX <= gap <= max_gap_px:
-            continue
-        rows.append(index[matches.matched])
-        values.append(found)
+        if matches.matched.sum() >= MIN_END_MATCHES:
+            rows.append(index[matches.matched])
+            values.append(matches.disparity[matches.matched])
     if not rows:
         return None
     return np.concatenate(rows), np.concatenate(values)
