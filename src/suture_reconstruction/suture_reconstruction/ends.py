@@ -103,8 +103,7 @@ def sequence_anchor_deg(left: Resampled, disparity: Disparity, camera: StereoCam
     if np.count_nonzero(left.observed & disparity.supported) < 2:
         return 0.0
     held, _ = _sequence_steepness(left, disparity, camera)
-    held = held[left.observed]
-    return float(np.degrees(np.arcsin(min(float(held.max()), 1.0)))) if held.size else 0.0
+    return float(np.degrees(np.arcsin(min(float(held[left.observed].max()), 1.0))))
 
 
 def _sequence_steepness(
