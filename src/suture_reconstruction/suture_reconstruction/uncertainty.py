@@ -17,10 +17,15 @@ thread between the cut tip and the grasp point, four terms added in quadrature:
   the thread by as much. The term is :data:`NOT_SEEN_ARC_FACTOR` of the arc between the tip
   and the grasp point that is not seen in both views;
 * **disagreement**: the 3D path, projected into each view, should lie on that view's seen
-  sequence. Its largest distance from it (px) between the tip and just past the grasp point,
-  held over :data:`DISAGREEMENT_ARC_M` of arc seen in both views, means the views were paired
-  wrongly or describe different threads there; each pixel is taken as a pixel of disparity
-  (``Z^2 / (f B)`` mm).
+  sequence. Its largest distance from it (px) within :data:`GRASP_WINDOW_M` of arc either side
+  of the grasp point, held over :data:`DISAGREEMENT_ARC_M` of arc seen in both views, means the
+  views were paired wrongly or describe different threads there; each pixel is taken as a pixel
+  of disparity (``Z^2 / (f B)`` mm), a depth error of the grasp point itself. A disagreement
+  before that window moves the grasp point only along the thread, by the arc it adds or
+  removes: :func:`unexplained_arc_mm` (thread a view saw that the 3D thread does not hold) and
+  :func:`arc_image_ratio` (a depth zigzag) measure that. Read as depth at the grasp point it
+  would also refuse good grasps through a tight hook at the cut tip, where the smoothed curve
+  cuts the bend by 1-3 px.
 
 * **unsupported depth**: along a stretch within :data:`UNSUPPORTED_ROW_DEG` of the rows the
   pair measures no depth; the reconstruction carries it there from the stretches on either
@@ -45,10 +50,8 @@ uncertainty exceeds ``max_grasp_uncertainty_mm``. The constants and the default 
 were set on simulated sets (mixed with predicted masks, the hard topologies with true and
 predicted masks), where the terms rank the grasps that the views disagree on; a tip hook that
 both views' sequences cut across the same way leaves no trace in the stereo pair and is not
-caught here. The default, 11 mm, lies between the uncertainty of good grasps through a tight
-hook at the tip (up to about 10.7 mm, most of it disagreement: the smoothed curve cuts the bend
-by 1-3 px) and that of grasps whose depth along a stretch parallel to the rows rests on no
-measurement (docs/experiments.md, 2026-11-30, noon).
+caught here. The default, 11 mm, lies below the uncertainty of grasps whose depth along a
+stretch parallel to the rows rests on no measurement (docs/experiments.md, 2026-11-30, noon).
 
 :func:`unexplained_arc_mm` reads the converse of the disagreement term: every seen sample of
 either view's sequence between the cut tip and the grasp point is the image of some point of the
@@ -110,7 +113,8 @@ MIN_ROW_SINE = float(np.sin(np.radians(3.0)))
 NOT_SEEN_ARC_FACTOR = 0.15
 #: Angle (deg) to the image rows below which a stretch's depth is not measured but carried.
 UNSUPPORTED_ROW_DEG = 5.0
-#: Arc (m) either side of the grasp point over which its conditioning and seen state are read.
+#: Arc (m) either side of the grasp point over which its conditioning, seen state and the views'
+#: disagreement are read.
 GRASP_WINDOW_M = 0.003
 #: Samples of the left sequence within this distance (px) beyond the nearest one to the 3D thread's
 #: projected start count as its place; the earliest of them gives the arc missing at the tip (in a
@@ -140,8 +144,8 @@ class GraspUncertainty:
     ``row_angle_deg``: the thread's angle to the image rows at the grasp point (left view);
     ``not_seen_arc_mm``: arc between the tip and the grasp point not seen in both views;
     ``residual_px``: the largest distance of the projected path from a view's seen sequence
-    held over :data:`DISAGREEMENT_ARC_M` (tip to just past the grasp point); ``grasp_not_seen``:
-    the views ('left', 'right') in which the grasp point is not seen.
+    held over :data:`DISAGREEMENT_ARC_M`, within :data:`GRASP_WINDOW_M` of the grasp point;
+    ``grasp_not_seen``: the views ('left', 'right') in which the grasp point is not seen.
     """
 
     total_mm: float
@@ -199,12 +203,13 @@ def _residual_px(uv: np.ndarray, support: _ViewSupport, to_samples: np.ndarray) 
     return np.minimum(np.linalg.norm(uv[:, None] - closest, axis=-1).min(axis=1), to_samples)
 
 
-def _held_residual_px(residual: np.ndarray, seen_both: np.ndarray) -> float:
-    """The largest residual (px) that the (S,) ``residual`` holds over :data:`DISAGREEMENT_ARC_M`
-    of consecutive samples seen in both views (``seen_both``, (S,) bool); 0.0 with none."""
+def _held_residual_px(residual: np.ndarray, seen_both: np.ndarray, near: np.ndarray) -> float:
+    """The largest residual (px) among the samples ``near`` ((S,) bool) that the (S,) ``residual``
+    holds over :data:`DISAGREEMENT_ARC_M` of consecutive samples seen in both views
+    (``seen_both``, (S,) bool); 0.0 with none."""
     window = max(round(DISAGREEMENT_ARC_M / SAMPLE_STEP_M), 1)
     held = minimum_filter1d(np.where(seen_both, residual, 0.0), window, mode="constant", cval=0.0)
-    return float(held.max()) if held.size else 0.0
+    return float(held[near].max()) if near.any() else 0.0
 
 
 def assess_grasp(
@@ -253,7 +258,7 @@ def assess_grasp(
     unsupported = _unsupported_depth_mm(points[before], row_sine[before])
     not_seen_arc_mm = 1000 * SAMPLE_STEP_M * float((~seen_both[before]).sum())
     not_seen = NOT_SEEN_ARC_FACTOR * not_seen_arc_mm
-    residual_px = _held_residual_px(residual, seen_both)
+    residual_px = _held_residual_px(residual, seen_both, near)
     disagreement = depth_per_px_mm * residual_px
     uncertainty = GraspUncertainty(
         total_mm=float(np.sqrt(conditioning**2 + not_seen**2 + disagreement**2 + unsupported**2)),
