@@ -189,7 +189,7 @@ class ReconstructionParams:
         ),
     )
     max_grasp_uncertainty_mm: float = field(
-        default=11.0,
+        default=10.0,
         metadata=described(
             "largest estimated uncertainty (mm) of the grasp point that is still published; a grasp "
             "point less certain is refused (UncertainGraspError)",
