@@ -50,10 +50,10 @@ uncertainty exceeds ``max_grasp_uncertainty_mm``. The constants and the default 
 were set on simulated sets (mixed with predicted masks, the hard topologies with true and
 predicted masks), where the terms rank the grasps that the views disagree on; a tip hook that
 both views' sequences cut across the same way leaves no trace in the stereo pair and is not
-caught here. The default, 10 mm, is the error beyond which a grasp is wrong for the robot: the
-estimate is read as a bound of the grasp point's error (grasps whose depth along a stretch
-parallel to the rows rests on no measurement reach 10.7-14.7 mm, and as far off;
-docs/experiments.md, 2026-11-30, noon and before midnight).
+caught here. The default, 10 mm, is the error no published grasp should exceed: the estimate
+is read as a bound of the grasp point's error (grasps whose depth along a stretch parallel to the
+rows rests on no measurement read 10.7-14.7 mm and land 11-17 mm off; docs/experiments.md,
+2026-11-30, noon and before midnight).
 
 :func:`unexplained_arc_mm` reads the converse of the disagreement term: every seen sample of
 either view's sequence between the cut tip and the grasp point is the image of some point of the
