@@ -233,6 +233,9 @@ def assess_grasp(
     supports = [_ViewSupport(view.points, view.observed) for view in resampled]
     s = np.arange(0.0, min(curve.length, grasp_arc_length + GRASP_WINDOW_M) + 1e-12, SAMPLE_STEP_M)
     points = curve.at(s)
+    near = np.abs(s - grasp_arc_length) <= GRASP_WINDOW_M
+    # Held over DISAGREEMENT_ARC_M, the window's residual reads samples up to that far beyond it.
+    reach = np.abs(s - grasp_arc_length) <= GRASP_WINDOW_M + DISAGREEMENT_ARC_M
     path_not_seen = np.zeros(len(path), dtype=bool)
     seen_both = np.ones(len(s), dtype=bool)
     residual = np.zeros(len(s))
@@ -240,10 +243,9 @@ def assess_grasp(
         uv = camera.project(points, view)
         seen, to_samples = support.locate(uv)
         seen_both &= seen
-        residual = np.maximum(residual, _residual_px(uv, support, to_samples))
+        residual[reach] = np.maximum(residual[reach], _residual_px(uv[reach], support, to_samples[reach]))
         path_seen, _ = support.locate(camera.project(path, view))
         path_not_seen |= ~path_seen
-    near = np.abs(s - grasp_arc_length) <= GRASP_WINDOW_M
     at_grasp = int(np.argmin(np.abs(s - grasp_arc_length)))
     grasp_not_seen = tuple(
         view
