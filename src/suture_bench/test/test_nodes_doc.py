@@ -25,7 +25,7 @@ def test_every_parameter_has_a_description_and_every_number_a_range(descriptions
     assert counts == {
         "segmentation_node": 12,
         "ordering_node": 45,
-        "reconstruction_node": 25,
+        "reconstruction_node": 26,
         "executor_node": 32,
         "psm_sim_node": 9,
         "player_node": 10,

@@ -79,6 +79,7 @@ from suture_reconstruction.ends import (
     sequence_anchor_deg,
 )
 from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.image_evidence import seen_in_image
 from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
 from suture_reconstruction.pairing import (
     Disparity,
@@ -131,7 +132,7 @@ class ReconstructionParams:
     Upsilon_3...). Curve: ``curve_smoothing`` (m), ``arc_smoothing`` (m, the shorter smoothing of
     the image-plane directions along which the arc length is measured), ``path_step`` (m). Grasp:
     ``grasp_arc_length`` (m from the cut tip), ``max_grasp_uncertainty_mm`` and
-    ``refuse_unseen_grasp``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm``,
+    ``refuse_unseen_grasp``, ``image_evidence``, ``max_tip_gap_mm``, ``max_unexplained_arc_mm``,
     ``max_arc_image_ratio`` (the refusals of :mod:`suture_reconstruction.uncertainty`).
 
     :meth:`replace` takes flat names for the nested parameters too.
@@ -199,6 +200,14 @@ class ReconstructionParams:
     refuse_unseen_grasp: bool = field(
         default=True,
         metadata=described("refuse a grasp point that a view does not see (GraspNotSeenError)"),
+    )
+    image_evidence: bool = field(
+        default=True,
+        metadata=described(
+            "with images: a stretch a view's mask lost (flagged not seen) that its image shows as a thin "
+            "line of the thread's contrast counts as seen for the grasp's refusal and uncertainty "
+            "(suture_reconstruction.image_evidence)"
+        ),
     )
     max_tip_gap_mm: float = field(
         default=3.0,
@@ -495,7 +504,10 @@ def reconstruct(
     grasp = grasp_pose(curve, params.grasp_arc_length)
     refuse_late_start(tip_gap_mm(curve, left, camera), params.max_tip_gap_mm)
     timer.lap("curve_and_grasp")
-    uncertainty, path_not_seen = assess_grasp(curve, path, camera, (left, right), params.grasp_arc_length)
+    views = (left, right)
+    if images is not None and params.image_evidence:
+        views = (seen_in_image(left, images[0]), seen_in_image(right, images[1]))
+    uncertainty, path_not_seen = assess_grasp(curve, path, camera, views, params.grasp_arc_length)
     refuse_uncertain_grasp(uncertainty, params.max_grasp_uncertainty_mm, params.refuse_unseen_grasp)
     unexplained, view = unexplained_arc_mm(curve, camera, (left, right), params.grasp_arc_length)
     refuse_unexplained_arc(unexplained, view, params.max_unexplained_arc_mm)

@@ -12,7 +12,9 @@ spline, :func:`suture_reconstruction.pairing.regularise_disparity`), and the pix
 thread across the gap is therefore a smooth curve that meets the seen thread in position and
 direction at both ends, and its arc length, not the chord's, goes into the arc length to the
 grasp point. Path points that lie there are flagged (``Reconstruction.path_not_seen``,
-:mod:`suture_reconstruction.uncertainty`) and a grasp on them is refused.
+:mod:`suture_reconstruction.uncertainty`) and a grasp on them is refused, unless the view's image
+shows the thread along the stretch (the mask lost a faint stretch, no instrument hides it:
+:mod:`suture_reconstruction.image_evidence`).
 """
 
 from __future__ import annotations

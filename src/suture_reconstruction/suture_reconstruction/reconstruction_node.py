@@ -109,6 +109,7 @@ _CORE_PARAMETERS = (
     (ReconstructionParams, "grasp_arc_length"),
     (ReconstructionParams, "max_grasp_uncertainty_mm"),
     (ReconstructionParams, "refuse_unseen_grasp"),
+    (ReconstructionParams, "image_evidence"),
     (ReconstructionParams, "max_tip_gap_mm"),
     (ReconstructionParams, "max_unexplained_arc_mm"),
     (ReconstructionParams, "max_arc_image_ratio"),

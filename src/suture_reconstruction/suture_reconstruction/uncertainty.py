@@ -35,6 +35,9 @@ thread between the cut tip and the grasp point, four terms added in quadrature:
 
 A point of the 3D path is seen in a view when the nearest sample of that view's sequence
 (resampled every 1 px, a jump across a hidden stretch filled with unseen samples) is a seen one.
+With images, :func:`suture_reconstruction.reconstruct` first marks seen the stretches the mask
+lost that the image shows as a thin line of the thread's contrast
+(:mod:`suture_reconstruction.image_evidence`).
 
 :func:`refuse_late_start` raises :class:`~suture_reconstruction.errors.TipNotReconstructedError`
 when the 3D thread starts after the cut tip: the grasp point is placed by arc length from the
