@@ -108,6 +108,8 @@ def _contrast(picture: np.ndarray, points: np.ndarray, normals: np.ndarray, flan
 
 
 def _sample(picture: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(K, C): the (H, W, C) float32 ``picture`` at the (K, 2) ``points`` (u, v), bilinear, the
+    border mirrored."""
     maps = points.astype(np.float32).reshape(-1, 1, 2)
     values = cv2.remap(picture, maps[..., 0], maps[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     return values.reshape(len(points), picture.shape[2])

@@ -11,7 +11,7 @@ import pytest
 from suture_common.camera import StereoCamera
 from suture_reconstruction import GraspNotSeenError, ReconstructionParams, reconstruct
 from suture_reconstruction.image_evidence import seen_in_image
-from suture_reconstruction.sequences import resample
+from suture_reconstruction.sequences import Resampled, resample
 
 THREAD_COLOUR = np.array([40.0, 70.0, 50.0])
 SHAFT_COLOUR = np.array([150.0, 150.0, 160.0])
@@ -78,7 +78,7 @@ def test_a_grasp_on_a_stretch_the_masks_lost_is_published_where_the_images_show_
         reconstruct(left, right, camera, images=tuple(shafted))
 
 
-def straight_view(unobserved: slice) -> object:
+def straight_view(unobserved: slice) -> Resampled:
     """A straight sequence across a 640x480 view, resampled every 1 px, ``unobserved`` not observed."""
     points = np.column_stack([np.linspace(100.0, 540.0, 50), np.linspace(150.0, 330.0, 50)])
     view = resample(points, 1.0)
