@@ -490,7 +490,7 @@ def reconstruct(
             pairs,
             params.disparity,
             params.photometric,
-            end_matcher=lambda fused, prepared: match_unanchored_ends(prepared, left, fused, camera),
+            end_matcher=lambda fused, prepared: match_unanchored_ends(prepared, left, fused, camera, images),
         )
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)

@@ -36,7 +36,15 @@ along moves with it. :func:`match_unanchored_ends` matches the same window round
 nearest steep stretch lies at least :data:`END_LEVER_M` of arc away, and the refinement
 (:func:`~suture_reconstruction.photometric.refine_disparity`) fuses those matches in place of the
 end's pair, with the weight of its most confident match: there the images, not the masks, say
-where the end is.
+where the end is. That holds for an end where the thread stops, not for one where an instrument
+lies over it: the window then holds the instrument's edge, at the instrument's depth, and
+matches that (a shaft lying along a thread 7 degrees from the rows pulled its end 3.6 px of
+disparity, 10 mm of depth, towards the camera). Past an end where the thread stops lies the
+tissue it rests on, at about its depth; past one under an instrument lies the instrument, nearer
+the camera. :func:`at_occluder` matches a window just past the end
+(:func:`~suture_reconstruction.surface.window_disparity`); where it holds a clear structure
+(:data:`MIN_STRUCTURE`) that the right view puts more than :data:`NEARER_PX` nearer than the
+thread's end, the end is not matched, as an end at the image border is not.
 
 Units: metres for 3D points, pixels in the images, degrees for angles.
 """
@@ -52,6 +60,7 @@ from suture_reconstruction.errors import EndDisparityError
 from suture_reconstruction.pairing import Disparity
 from suture_reconstruction.photometric import PhotometricParams, match_along_rows, prepare_images
 from suture_reconstruction.sequences import Resampled
+from suture_reconstruction.surface import PATCH_HALF_PX, window_disparity
 from suture_reconstruction.uncertainty import SAMPLE_STEP_M, row_sines
 
 #: A stretch of thread at least this steep (deg to the image rows) over ANCHOR_ARC_M measures depth.
@@ -74,6 +83,17 @@ BORDER_PX = 12.0
 #: An end whose nearest stretch steeper than ANCHOR_ROW_DEG lies at least this far (m of arc)
 #: along the thread rests its depth on the end's pair, and is matched in the images.
 END_LEVER_M = 0.012
+#: Something past an end nearer the camera than the thread's end by more than this (px of
+#: disparity: 5 mm at 95 mm) lies over the thread: the thread runs on under it.
+NEARER_PX = 1.5
+#: A window past an end is matched only where its grey levels vary by at least this much
+#: (standard deviation, 8-bit scale): an instrument's edge and shading do, and a faint texture's
+#: match along the rows is ambiguous.
+MIN_STRUCTURE = 8.0
+#: The window past an end starts this far (px) beyond it.
+BEYOND_GAP_PX = 2.0
+#: Samples (1 px apart) before an end that give the way the thread leaves it.
+END_DIRECTION_SAMPLES = 12
 #: The matching of an end's window: it holds the termination, searched about the given disparity.
 END_WINDOW = PhotometricParams(
     search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
@@ -130,17 +150,19 @@ def match_unanchored_ends(
     left: Resampled,
     disparity: Disparity,
     camera: StereoCamera,
+    images: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The images' disparity at each end of a thread whose depth there rests on the end's pair.
 
     ``prepared``: the rectified (left, right) views as
     :func:`~suture_reconstruction.photometric.prepare_images` blurs them (the refinement's own);
     ``left``: the left sequence resampled every 1 px with its ``observed`` flags; ``disparity``:
-    the fused disparity along it. An end qualifies when the thread crosses the image rows at
-    :data:`ANCHOR_ROW_DEG` or more over :data:`ANCHOR_ARC_M` somewhere, but not within
-    :data:`END_LEVER_M` of arc from that end (arc read in pixels at the thread's median
-    disparity), and it lies away from the image border. Its :data:`END_SAMPLES` outermost
-    supported samples are matched along the rows with the window that holds the termination
+    the fused disparity along it; ``images``: the rectified views, unblurred. An end qualifies
+    when the thread crosses the image rows at :data:`ANCHOR_ROW_DEG` or more over
+    :data:`ANCHOR_ARC_M` somewhere, but not within :data:`END_LEVER_M` of arc from that end (arc
+    read in pixels at the thread's median disparity), it lies away from the image border, and it
+    does not run under something nearer the camera (:func:`at_occluder`). Its :data:`END_SAMPLES`
+    outermost supported samples are matched along the rows with the window that holds the termination
     (:func:`end_disparity_gaps_px`' window), within :data:`END_SEARCH_PX` of ``disparity``.
     Returns (rows (E,) int, disparities (E,) px) of the matched samples, or None where no end
     qualifies or none matched :data:`MIN_END_MATCHES` samples. A thread with no steep stretch
@@ -157,10 +179,15 @@ def match_unanchored_ends(
     lever = END_LEVER_M * px_per_m
     unanchored = []
     if anchored[0] - supported[0] >= lever:
-        unanchored.append((supported[:END_SAMPLES], supported[0]))
+        unanchored.append((supported[:END_SAMPLES], supported[0], 1))
     if supported[-1] - anchored[-1] >= lever:
-        unanchored.append((supported[-END_SAMPLES:], supported[-1]))
-    windows = [index for index, outermost in unanchored if not _at_border(points[outermost], camera)]
+        unanchored.append((supported[-END_SAMPLES:], supported[-1], -1))
+    windows = [
+        index
+        for index, outermost, inward in unanchored
+        if not _at_border(points[outermost], camera)
+        and not at_occluder(images, points, outermost, inward, float(disparity.value[outermost]))
+    ]
     if not windows:
         return None
     tangents = np.gradient(points, axis=0)
@@ -209,6 +236,25 @@ def end_disparity_gaps_px(
             continue
         gaps.append(float(np.median(matches.disparity[matches.matched] - reconstructed[matches.matched])))
     return gaps[0], gaps[1]
+
+
+def at_occluder(
+    images: tuple[np.ndarray, np.ndarray], points: np.ndarray, end: int, inward: int, end_disparity: float
+) -> bool:
+    """Whether the thread's end at sample ``end`` of the left sequence ``points`` ((K, 2) px,
+    resampled every 1 px; ``inward``: 1 where the thread lies at higher indices, as at the cut tip,
+    -1 at the far end) runs under something nearer the camera: whether the window just past the
+    end (:data:`BEYOND_GAP_PX` beyond it, along the way the thread leaves it) holds a structure
+    (:data:`MIN_STRUCTURE`) that ``images`` (the rectified left and right views) put more than
+    :data:`NEARER_PX` of disparity nearer than ``end_disparity``, the thread's at the end."""
+    last = points[np.clip(end + inward * np.arange(END_DIRECTION_SAMPLES), 0, len(points) - 1)]
+    outward = last[0] - last[-1]
+    length = float(np.linalg.norm(outward))
+    if length == 0.0:
+        return False
+    centre = last[0] + (PATCH_HALF_PX + BEYOND_GAP_PX) * outward / length
+    beyond = window_disparity(images, centre, end_disparity, min_texture=MIN_STRUCTURE)
+    return beyond is not None and beyond - end_disparity > NEARER_PX
 
 
 def _at_border(uv: np.ndarray, camera: StereoCamera) -> bool:

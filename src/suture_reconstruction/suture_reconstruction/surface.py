@@ -60,38 +60,47 @@ def surface_disparity(
     """The surface's disparity (px) in the windows above and below the left pixel ``uv`` (2,),
     searched within :data:`SEARCH_PX` of ``thread_disparity``; None for a window outside the image,
     without texture or without a clear match (module docstring)."""
+    u, row = float(uv[0]), float(uv[1])
+    return [
+        window_disparity(images, np.array([u, row + offset]), thread_disparity)
+        for offset in (-PATCH_OFFSET_PX, PATCH_OFFSET_PX)
+    ]
+
+
+def window_disparity(
+    images: tuple[np.ndarray, np.ndarray],
+    centre: np.ndarray,
+    around: float,
+    min_texture: float = MIN_TEXTURE,
+) -> float | None:
+    """The disparity (px) of the square window of the left image centred on the pixel ``centre``
+    (2,) (u, v), :data:`PATCH_HALF_PX` * 2 + 1 px wide, matched by normalised cross-correlation
+    along the same rows of the right image within :data:`SEARCH_PX` of ``around``, with a parabola
+    through the peak; None for a window outside the image, with a grey-level standard deviation
+    below ``min_texture`` (8-bit scale) or a best match below :data:`MIN_CORRELATION`."""
     height, width = np.asarray(images[0]).shape[:2]
     half = PATCH_HALF_PX
-    u, row = round(float(uv[0])), round(float(uv[1]))
-    top = max(row - PATCH_OFFSET_PX - half, 0)  # only the rows the windows cover are converted
-    band = slice(top, max(min(row + PATCH_OFFSET_PX + half + 1, height), top))
+    u, v = round(float(centre[0])), round(float(centre[1]))
+    if v - half < 0 or v + half >= height or u - half < 0 or u + half >= width:
+        return None
+    band = slice(v - half, v + half + 1)  # only the rows the window covers are converted
     left, right = _grey(np.asarray(images[0])[band]), _grey(np.asarray(images[1])[band])
-    found: list[float | None] = []
-    for offset in (-PATCH_OFFSET_PX, PATCH_OFFSET_PX):
-        v = row + offset
-        if v - half < 0 or v + half >= height or u - half < 0 or u + half >= width:
-            found.append(None)
-            continue
-        v -= top
-        patch = left[v - half : v + half + 1, u - half : u + half + 1]
-        lo = max(int(np.floor(u - thread_disparity - SEARCH_PX)) - half, 0)
-        hi = min(int(np.ceil(u - thread_disparity + SEARCH_PX)) + half + 1, width)
-        if float(patch.std()) < MIN_TEXTURE or hi - lo < patch.shape[1] + 2:
-            found.append(None)
-            continue
-        score = cv2.matchTemplate(right[v - half : v + half + 1, lo:hi], patch, cv2.TM_CCOEFF_NORMED)[0]
-        best = int(np.argmax(score))
-        if score[best] < MIN_CORRELATION:
-            found.append(None)
-            continue
-        shift = 0.0
-        if 0 < best < len(score) - 1:
-            below, peak, above = score[best - 1], score[best], score[best + 1]
-            curvature = below - 2 * peak + above
-            if curvature < 0:
-                shift = float(0.5 * (below - above) / curvature)
-        found.append(float(u - (lo + half + best + shift)))
-    return found
+    patch = left[:, u - half : u + half + 1]
+    lo = max(int(np.floor(u - around - SEARCH_PX)) - half, 0)
+    hi = min(int(np.ceil(u - around + SEARCH_PX)) + half + 1, width)
+    if float(patch.std()) < min_texture or hi - lo < patch.shape[1] + 2:
+        return None
+    score = cv2.matchTemplate(right[:, lo:hi], patch, cv2.TM_CCOEFF_NORMED)[0]
+    best = int(np.argmax(score))
+    if score[best] < MIN_CORRELATION:
+        return None
+    shift = 0.0
+    if 0 < best < len(score) - 1:
+        below, peak, above = score[best - 1], score[best], score[best + 1]
+        curvature = below - 2 * peak + above
+        if curvature < 0:
+            shift = float(0.5 * (below - above) / curvature)
+    return float(u - (lo + half + best + shift))
 
 
 def surface_gap_px(

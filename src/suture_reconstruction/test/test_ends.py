@@ -12,13 +12,15 @@ from suture_common.camera import StereoCamera
 from suture_reconstruction import EndDisparityError, ReconstructionParams, core, reconstruct
 from suture_reconstruction.curve import fit_curve
 from suture_reconstruction.ends import (
+    END_WINDOW,
     anchor_row_angle_deg,
+    at_occluder,
     match_unanchored_ends,
     refuse_contradicted_ends,
     sequence_anchor_deg,
 )
 from suture_reconstruction.pairing import DisparitySmoothing, Pairs, regularise_disparity
-from suture_reconstruction.photometric import prepare_images, refine_disparity
+from suture_reconstruction.photometric import match_along_rows, prepare_images, refine_disparity
 from suture_reconstruction.sequences import resample
 
 DEPTH = 0.095
@@ -170,7 +172,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         len(tip_off), np.arange(len(tip_off)), tip_off, np.ones(len(tip_off)), DisparitySmoothing()
     )
 
-    matched = match_unanchored_ends(prepare_images(*images), resampled, wrong, camera)
+    matched = match_unanchored_ends(prepare_images(*images), resampled, wrong, camera, images)
     assert matched is not None
     rows, values = matched
     assert rows.tolist() == list(range(5))  # the tip's 5 outermost samples; the far end is steep
@@ -184,7 +186,8 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
             len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
         )
         thread_images = with_thread(textured_pair(camera, 20), camera, anchored_or_not)
-        assert match_unanchored_ends(prepare_images(*thread_images), samples, fit, camera) is None
+        prepared = prepare_images(*thread_images)
+        assert match_unanchored_ends(prepared, samples, fit, camera, thread_images) is None
 
     steep = np.arange(steep_from, len(tip_off))
     pairs = Pairs(  # the tip's pair 3 px off (the cut mask), every steep sample's pair right
@@ -209,3 +212,40 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
     )
     assert abs(refined.value[0] - true_disparity) < 0.5
     assert not abs(fused.value[0] - true_disparity) < 1.0  # without them: unsupported (NaN) or off
+
+
+def test_an_end_under_an_instrument_is_not_matched_in_the_images(exact_views, textured_pair):
+    """The thread of the test above with its first 10 mm under an instrument shaft lying across
+    it, 15 mm nearer the camera: the left sequence starts at the shaft's edge. The window round
+    that end holds the edge, at the shaft's depth, and the images put the end 1-3 px of disparity
+    (3-10 mm) too near. Past the end lies the shaft, which the right view puts nearer than
+    the thread: the end is not matched. With tissue past it (the thread drawn on), it is."""
+    camera = StereoCamera.default(640, 480)
+    curve = along_rows_then_steep(flat_deg=0.0)
+    left, _ = exact_views(camera, curve[round(0.010 / 5e-5) :])
+    samples = resample(left, 1.0, 10.0)
+    true_disparity = float(camera.disparity(DEPTH))
+    flat = np.full(len(samples.arc), true_disparity)
+    fit = regularise_disparity(
+        len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
+    )
+    tissue = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
+    shaft_disparity = float(camera.disparity(DEPTH - 0.015))
+    images = []
+    for image, shift in zip(tissue, (0.0, shaft_disparity), strict=True):
+        across = np.arange(camera.width) + shift - float(left[0, 0])  # 0 at the shaft's edge
+        inside = (across > 1.0) & (across < 60.0)
+        shade = 120.0 + 100.0 * np.sin(np.pi * across[inside] / 60.0)  # a metal cylinder's shading
+        covered = image.copy()
+        covered[:, inside] = shade.astype(np.uint8)[None, :, None]
+        images.append(covered)
+    prepared = prepare_images(*images)
+    tip = np.arange(5)
+    tangents = np.gradient(samples.points, axis=0)
+    edge_match = match_along_rows(*prepared, samples.points[tip], tangents[tip], flat[tip], END_WINDOW)
+    assert np.median(edge_match.disparity[edge_match.matched]) > true_disparity + 1.5
+
+    assert at_occluder(images, samples.points, 0, 1, true_disparity)
+    assert match_unanchored_ends(prepared, samples, fit, camera, images) is None
+    assert not at_occluder(tissue, samples.points, 0, 1, true_disparity)
+    assert match_unanchored_ends(prepare_images(*tissue), samples, fit, camera, tissue) is not None
