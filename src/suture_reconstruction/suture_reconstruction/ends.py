@@ -38,8 +38,8 @@ nearest steep stretch lies at least :data:`END_LEVER_M` of arc away, and the ref
 end's pair, with the weight of its most confident match: there the images, not the masks, say
 where the end is. That holds for an end where the thread stops, not for one where an instrument
 lies over it: the window then holds the instrument's edge, at the instrument's depth, and
-matches that (a shaft lying along a thread 7 degrees from the rows pulled its end 3.6 px of
-disparity, 10 mm of depth, towards the camera). Past an end where the thread stops lies the
+matches that (a shaft a few millimetres above the thread is several px of disparity nearer, and
+the fused end follows it by as much). Past an end where the thread stops lies the
 tissue it rests on, at about its depth; past one under an instrument lies the instrument, nearer
 the camera. :func:`at_occluder` matches a window just past the end
 (:func:`~suture_reconstruction.surface.window_disparity`); where it holds a clear structure
