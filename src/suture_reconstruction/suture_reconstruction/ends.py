@@ -37,14 +37,16 @@ nearest steep stretch lies at least :data:`END_LEVER_M` of arc away, and the ref
 (:func:`~suture_reconstruction.photometric.refine_disparity`) fuses those matches in place of the
 end's pair, with the weight of its most confident match: there the images, not the masks, say
 where the end is. That holds for an end where the thread stops, not for one where an instrument
-lies over it: the window then holds the instrument's edge, at the instrument's depth, and
-matches that (a shaft a few millimetres above the thread is several px of disparity nearer, and
-the fused end follows it by as much). Past an end where the thread stops lies the
-tissue it rests on, at about its depth; past one under an instrument lies the instrument, nearer
-the camera. :func:`at_occluder` matches a window just past the end
+lies over it: the window then holds the instrument's edge, at the instrument's depth, and matches
+that (a shaft a few millimetres above the thread is several px of disparity nearer, and the fused
+end follows it by as much). Past an end where the thread stops lies the tissue it rests on, at
+about its depth; past one under an instrument lies the instrument, nearer the camera.
+:func:`at_occluder` matches a window just past the end
 (:func:`~suture_reconstruction.surface.window_disparity`); where it holds a clear structure
 (:data:`MIN_STRUCTURE`) that the right view puts more than :data:`NEARER_PX` nearer than the
-thread's end, the end is not matched, as an end at the image border is not.
+thread's end, the end is not matched, as an end at the image border is not. The check of a
+thread with no steep stretch (:func:`end_disparity_gaps_px`) still reads such an end: the gap it
+finds there is the instrument's, and a refusal is the safe side.
 
 Units: metres for 3D points, pixels in the images, degrees for angles.
 """
@@ -161,9 +163,10 @@ def match_unanchored_ends(
     when the thread crosses the image rows at :data:`ANCHOR_ROW_DEG` or more over
     :data:`ANCHOR_ARC_M` somewhere, but not within :data:`END_LEVER_M` of arc from that end (arc
     read in pixels at the thread's median disparity), it lies away from the image border, and it
-    does not run under something nearer the camera (:func:`at_occluder`). Its :data:`END_SAMPLES`
-    outermost supported samples are matched along the rows with the window that holds the termination
-    (:func:`end_disparity_gaps_px`' window), within :data:`END_SEARCH_PX` of ``disparity``.
+    does not run under something nearer the camera (:func:`at_occluder`). Its
+    :data:`END_SAMPLES` outermost supported samples are matched along the rows with the window
+    that holds the termination (:func:`end_disparity_gaps_px`' window), within
+    :data:`END_SEARCH_PX` of ``disparity``.
     Returns (rows (E,) int, disparities (E,) px) of the matched samples, or None where no end
     qualifies or none matched :data:`MIN_END_MATCHES` samples. A thread with no steep stretch
     at all is left to :func:`refuse_contradicted_ends`.
