@@ -17,8 +17,10 @@ ends on the rim, passes every branch of the hook (each at most twice, a loop onc
 shorter than ``SPUR`` px to a free end is a spur of the thinning and may be left out, and so may
 an arm of another thread that crosses ours and ends inside the window where the mask loses it: a
 branch to a free end that runs on straight across its junction into a branch as wide as itself,
-:func:`_passing_strands`; merged arms down to a hairpin's bend are twice as wide as the arm that
-leaves them), turns back only at free ends (at the mask's end, past the skeleton's), and goes on
+or, where the mask lost the other thread's far arm too, a branch no wider than ours at a junction
+that our thread runs straight through, :func:`_passing_strands`; merged arms down to a hairpin's
+bend are twice as wide as the arm that leaves them, and leave the junction beside the tip arm),
+turns back only at free ends (at the mask's end, past the skeleton's), and goes on
 at a junction through any branch. Of all such walks the one that turns least where it passes a
 junction or the tip wins, then the shortest: each turn is the angle between the chords
 ``step_radius`` px along the walk before and after the pass, so a crossing is crossed straight and
@@ -305,13 +307,17 @@ def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) ->
 def _passing_strands(
     graph: _Graph, places: dict[int, int], depth: np.ndarray, spur: float, step: float
 ) -> frozenset[int]:
-    """The branches to a free end (not the tip's) that are the arm of another thread crossing ours
-    in an X, the mask having lost that thread inside the window: at a junction (its place,
+    """The branches to a free end (not the tip's) that are the arm of another thread crossing ours,
+    the mask having lost that thread inside the window: at a junction (its place,
     :func:`_places`) with four arms, the branch runs on within :data:`PASSING_TURN` into an arm no
     thinner than it by :data:`PASSING_WIDTH` (``depth``: (h, w) the window's distance transform)
     that leaves the window, and the other two arms run on into each other as straight, one of them
-    out of the window too. A hairpin's merged arms meet the arm that leaves them in three arms, and
-    are twice its width; a loop at the tip crosses its tip arm with arms that stay in the window."""
+    out of the window too (an X). At a junction with three arms, where the mask lost the other
+    thread on both sides of the crossing, the other two arms run on into each other as straight,
+    one of them out of the window, and the branch is no wider than it by :data:`PASSING_WIDTH`
+    (a T). A hairpin's merged arms meet the tip arm and the arm that leaves them in three arms
+    too, but those two leave the junction side by side, and the merged arms are twice as wide; a
+    loop at the tip crosses its tip arm with arms that stay in the window."""
     at_place: dict[int, list[tuple[int, bool]]] = {}
     for k, branch in enumerate(graph.branches):
         if branch.length < spur and "end" not in (graph.kind[branch.a], graph.kind[branch.b]):
@@ -339,11 +345,21 @@ def _passing_strands(
 
     passing = set()
     for arms in at_place.values():
-        if len(arms) != 4 or len({k for k, _ in arms}) != 4:
+        if len(arms) not in (3, 4) or len({k for k, _ in arms}) != len(arms):
             continue
         measured = [outward(k, into) for k, into in arms]
         for i, (k, _) in enumerate(arms):
             if measured[i][2] != "end" or graph.tip in (graph.branches[k].a, graph.branches[k].b):
+                continue
+            if len(arms) == 3:
+                one, other = (measured[m] for m in range(3) if m != i)
+                leaving = [arm for arm in (one, other) if arm[2] == "rim"]
+                if (
+                    leaving
+                    and straight(one, other)
+                    and all(measured[i][1] <= PASSING_WIDTH * arm[1] for arm in leaving)
+                ):
+                    passing.add(k)
                 continue
             for j in range(4):
                 rest = [m for m in range(4) if m not in (i, j)]

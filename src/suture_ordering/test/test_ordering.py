@@ -819,6 +819,17 @@ def test_a_crossing_strand_that_ends_in_the_hooks_window_is_not_walked():
         check_follows(sequence[:150, :2], truth.astype(float), tolerance=3.5, coverage=0.0)
 
 
+def test_a_crossing_strand_whose_far_arm_the_mask_lost_is_not_walked():
+    """Predicted masks (M-oST int8) of a simulator frame (crossed, 640x480): 50 px of arc from the
+    cut tip our thread crosses a straight strand, and the right view's mask lost that strand's
+    far arm, so the crossing has three arms and the near arm, to the strand's free end 53 px
+    away, had to be walked out and back like a hairpin's merged arms. The left view then took
+    that stretch from the right one as a loop it had passed by (a grasp 20.6 mm off). Our thread
+    runs straight through the junction and the arm is no wider than it: another strand's arm,
+    which the walk need not pass."""
+    check_stored_stereo_frame("predicted_crossing_strand_lost_beyond_the_crossing.npz")
+
+
 def test_a_tip_arm_that_thinning_ate_back_is_walked_from_the_masks_end():
     """A simulator frame (hooked, 640x480, true masks): the tip arm is drawn 2 px wide on the
     diagonal and its skeleton stops 12 px short of the cut tip; the walk through the hook
