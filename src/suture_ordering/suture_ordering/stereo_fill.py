@@ -38,7 +38,8 @@ wrong where the other's did not: at its own crossing a thread runs straight on
 into its loop, and where the mask has a gap near the crossing a search can take
 the other arm and skip the loop. Both sequences then end at the same place, one
 much shorter; the loop is put back from the other view where this view's mask
-shows it.
+shows it, and only a loop: a stretch most of whose points lie on thread passed already (the
+other view went out along a strand and back, or round a loop twice) is not put back.
 
 Shapes and units: sequences (N, 2) float64 (u, v) in pixels from the cut tip;
 masks (H, W), nonzero = thread; disparity d = u_left - u_right > 0.
@@ -47,6 +48,7 @@ masks (H, W), nonzero = thread; disparity d = u_left - u_right > 0.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from suture_ordering.not_seen import flagged_runs
 
@@ -58,6 +60,10 @@ GUIDE_MAX_STEP_PX = 3.0
 DISPARITY_SAMPLES = 80
 #: How fast the carried disparity follows the snapped points (fraction per sample).
 DISPARITY_FOLLOW = 0.2
+#: A stretch put back may pass this share of its points over thread already passed (by this
+#: view's sequence, or by the stretch itself farther along): a loop comes back only at its
+#: crossing; more is the other view going out and back along a strand, or round a loop twice.
+MAX_RETRACED = 0.5
 #: Samples at the end of a stopped sequence that may be dropped to find where it leaves the other
 #: view's path: a search that stops at a gap often ends in a short hook (its last steps bent by
 #: the mask's ragged end), several px off that path.
@@ -348,7 +354,9 @@ def splice_skipped_stretch(
     where none does but one at least ``min_skip`` samples further on does, ``own`` skipped the
     guide's stretch in between. It is put back, snapped to this view's mask like
     :func:`continue_from_other_view` does, only if at least ``min_support`` of it lies on the
-    mask (the loop is there, the search only missed it); otherwise ``own`` is returned as it is.
+    mask (the loop is there, the search only missed it) and at most :data:`MAX_RETRACED` of it
+    passes thread passed already (:func:`_retraced_share`, within ``snap_radius``); otherwise
+    ``own`` is returned as it is.
     ``sign``, ``d_range``, ``snap_radius``, ``max_run``, ``min_angle`` as there.
     """
     if len(own) < 20 or len(guide) < 20 or arc_length(own)[-1] > max_ratio * arc_length(guide)[-1]:
@@ -386,5 +394,25 @@ def splice_skipped_stretch(
         before = max(0, i - window)
         first = before + int(np.argmin(np.linalg.norm(own[before : i + 1] - inserted[0], axis=1)))
         last = i + int(np.argmin(np.linalg.norm(own[i : i + window] - inserted[-1], axis=1)))
+        kept = np.vstack([own[:first], own[last + 1 :]])
+        if _retraced_share(inserted, kept, snap_radius) > MAX_RETRACED:
+            return own, 0
         return np.vstack([own[:first], inserted, own[last + 1 :]]), len(inserted)
     return own, 0
+
+
+def _retraced_share(stretch: np.ndarray, kept: np.ndarray, radius: float) -> float:
+    """The share of ``stretch``'s points ((K, 2) px, about 1 px apart) within ``radius`` px of a
+    point of ``kept`` ((M, 2)) or of a point of the stretch more than ``4 * radius`` px of its arc
+    (counted in points) away."""
+    if len(stretch) == 0:
+        return 0.0
+    passed = np.zeros(len(stretch), dtype=bool)
+    if len(kept):
+        distance, _ = cKDTree(kept).query(stretch, distance_upper_bound=radius)
+        passed |= np.isfinite(distance)
+    i, j = cKDTree(stretch).query_pairs(radius, output_type="ndarray").T
+    apart = np.abs(i - j) > 4 * radius
+    passed[i[apart]] = True
+    passed[j[apart]] = True
+    return float(passed.mean())

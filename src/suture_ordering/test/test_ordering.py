@@ -471,6 +471,20 @@ def test_a_loop_one_view_cut_across_is_put_back_from_the_other_view():
     assert added == 0 and unchanged is shortcut
 
 
+def test_a_stretch_the_other_view_walked_out_and_back_is_not_put_back():
+    """The other view's sequence went out along a crossing strand to its free end and back (the
+    mask lost the strand beyond the crossing); this view crossed straight. Every point of that
+    stretch lies on thread it passes twice: no loop of ours, nothing to put back."""
+    camera = StereoCamera.default(W, H)
+    thread, strand = line((100, 150), (500, 350))[::2], line((300, 250), (345, 185))[::2]
+    crossing = int(np.argmin(np.hypot(*(thread - strand[0]).T)))
+    out_and_back = np.vstack([thread[:crossing], strand, strand[::-1], thread[crossing:]])
+    d_range = (camera.disparity(0.15), camera.disparity(0.05))
+    mask = draw([thread, strand])
+    kept, added = splice_skipped_stretch(thread, mask, out_and_back - [30, 0], -1.0, d_range)
+    assert added == 0 and kept is thread
+
+
 def test_params_scale_with_the_image_width():
     truth = line((200, 200), (1000, 700))
     mask = draw([truth], width=5, shape=(1024, 1280))
