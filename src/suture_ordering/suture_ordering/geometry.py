@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: cv2 drawing with 1/16 px precision (``shift`` of cv2.line / cv2.polylines).
 LINE_SHIFT = 4
@@ -65,3 +66,20 @@ def fixed_point(point: np.ndarray | tuple[float, float]) -> tuple[int, int]:
     fractional bits)."""
     scale = 1 << LINE_SHIFT  # a power of two: the products are exact; round() is round-half-even
     return round(float(point[0]) * scale), round(float(point[1]) * scale)
+
+
+def revisited(points: np.ndarray, radius: float, min_arc: float) -> np.ndarray:
+    """(N,) bool: which of the ordered ``points`` ((N, 2) px) lie nearer than ``radius`` px to
+    another of them more than ``min_arc`` px of arc away along them (the sequence comes back
+    there, or is come back to)."""
+    points = np.asarray(points, dtype=np.float64)
+    found = np.zeros(len(points), dtype=bool)
+    if len(points) < 2:
+        return found
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(points, axis=0).T))])
+    # Only the pairs of points close together (a k-d tree's, with a little slack) are measured.
+    i, j = cKDTree(points).query_pairs(radius * (1 + 1e-6) + 1e-6, output_type="ndarray").T
+    near = (np.abs(along[i] - along[j]) > min_arc) & (np.hypot(*(points[i] - points[j]).T) < radius)
+    found[i[near]] = True
+    found[j[near]] = True
+    return found

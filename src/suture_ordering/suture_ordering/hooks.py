@@ -79,6 +79,7 @@ from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize, thin
 
 from suture_ordering.context import SearchContext
+from suture_ordering.geometry import revisited
 from suture_ordering.nodes import MaskReader
 from suture_ordering.params import ScaledParams
 from suture_ordering.path import Branch, advance, advance_along
@@ -1104,14 +1105,7 @@ def _returns_near_tip(points: np.ndarray, tip: np.ndarray, scaled: ScaledParams)
     distance = np.hypot(*(points - np.asarray(tip)).T)
     outside = np.flatnonzero(distance > window)
     near = points[: outside[0] if outside.size else len(points)]
-    if len(near) < 2:
-        return False
-    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(near, axis=0).T))])
-    radius = max(1.0, scaled.detect_radius)
-    # Only the pairs of points close together (a k-d tree's, with a little slack) are measured.
-    i, j = cKDTree(near).query_pairs(radius * (1 + 1e-6) + 1e-6, output_type="ndarray").T
-    gaps = np.hypot(*(near[i] - near[j]).T)
-    return bool(np.any((np.abs(along[i] - along[j]) > 2 * scaled.roi_radius) & (gaps < radius)))
+    return bool(revisited(near, max(1.0, scaled.detect_radius), 2 * scaled.roi_radius).any())
 
 
 def stereo_tip(

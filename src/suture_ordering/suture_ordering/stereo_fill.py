@@ -50,6 +50,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from suture_ordering.geometry import revisited
 from suture_ordering.not_seen import flagged_runs
 
 #: Longest step (px) of the guiding sequence that counts as following the thread (searches
@@ -402,17 +403,12 @@ def splice_skipped_stretch(
 
 
 def _retraced_share(stretch: np.ndarray, kept: np.ndarray, radius: float) -> float:
-    """The share of ``stretch``'s points ((K, 2) px, about 1 px apart) within ``radius`` px of a
-    point of ``kept`` ((M, 2)) or of a point of the stretch more than ``4 * radius`` px of its arc
-    (counted in points) away."""
+    """The share of ``stretch``'s points ((K, 2) px) within ``radius`` px of a point of ``kept``
+    ((M, 2)) or of a point of the stretch more than ``4 * radius`` px of its arc away."""
     if len(stretch) == 0:
         return 0.0
-    passed = np.zeros(len(stretch), dtype=bool)
+    passed = revisited(stretch, radius, 4 * radius)
     if len(kept):
         distance, _ = cKDTree(kept).query(stretch, distance_upper_bound=radius)
         passed |= np.isfinite(distance)
-    i, j = cKDTree(stretch).query_pairs(radius, output_type="ndarray").T
-    apart = np.abs(i - j) > 4 * radius
-    passed[i[apart]] = True
-    passed[j[apart]] = True
     return float(passed.mean())
