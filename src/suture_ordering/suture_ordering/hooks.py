@@ -23,8 +23,9 @@ bend are twice as wide as the arm that leaves them, and leave the junction besid
 turns back only at free ends (at the mask's end, past the skeleton's), and goes on
 at a junction through any branch. Of all such walks the one that turns least where it passes a
 junction or the tip wins, then the shortest: each turn is the angle between the chords
-``step_radius`` px along the walk before and after the pass, so a crossing is crossed straight and
-a loop is gone round the way the tip arm enters it. Where the walk passes merged arms down to a
+``step_radius`` px along the walk before and after the pass (within a third of a loop the walk
+enters or leaves through a crossing: a longer chord cuts across the loop), so a crossing is
+crossed straight and a loop is gone round the way the tip arm enters it. Where the walk passes merged arms down to a
 loop and back, the skeleton is one line the same both ways round; the loop is gone round so that
 the walk leaves it by its arm on the stroke's side that the thread leaves by
 (:func:`_loop_against_side`). Over merged arms the walk's way down moves onto the tip arm and its
@@ -137,6 +138,9 @@ GUIDE_MARGIN = 1.0
 #: Arc (px at 640 px) by which a walk and its guide may be shifted along each other (their
 #: tips are found apart).
 GUIDE_SLACK = 6.0
+#: Where a walk enters or leaves a loop, its turn is measured over at most this share of the
+#: loop's length: a longer chord cuts across the loop and no longer points the way it leaves.
+LOOP_CHORD = 1.0 / 3.0
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -472,22 +476,38 @@ def _pieces(graph: _Graph, walk: list[tuple[int, bool]]) -> list[np.ndarray]:
 
 def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple[float, np.ndarray]:
     """Total turn (rad) of ``walk`` where it passes a node other than a free end, each measured
-    between the chords ``reach`` px before and after along the walk; and the walk's pixels."""
-    pieces, passes = _pieces(graph, walk), []
+    between the chords ``reach`` px before and after along the walk (at most ``LOOP_CHORD`` of a
+    loop's length where the pass enters or leaves a loop at a crossing); and the walk's pixels."""
+    pieces, passes, reaches = _pieces(graph, walk), [], []
     count = 0
     for position, ((k, rev), pixels) in enumerate(zip(walk, pieces, strict=True)):
         if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
             passes.append(count - 1)
+            loop = _crossed_loop(graph, walk, position)
+            reaches.append(reach if loop is None else min(reach, LOOP_CHORD * graph.branches[loop].length))
         count += len(pixels)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    at = along[passes]
+    at, reach = along[passes], np.asarray(reaches)
     before = path[passes] - path[np.searchsorted(along, np.maximum(at - reach, 0.0))]
     after = path[np.minimum(np.searchsorted(along, at + reach), len(path) - 1)] - path[passes]
     norms = np.hypot(*before.T) * np.hypot(*after.T)
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
     turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
     return float(turns.sum()), path
+
+
+def _crossed_loop(graph: _Graph, walk: list[tuple[int, bool]], position: int) -> int | None:
+    """The loop that ``walk`` enters or leaves where it passes from branch ``position - 1`` to
+    ``position``, when the thread crosses itself there (it comes to the loop by one branch and
+    leaves by another; a walk back along the branch it came by is a racket's neck); else None."""
+    for loop in (position, position - 1):  # the pass enters the loop, or leaves it
+        before, after, k = loop - 1, loop + 1, walk[loop][0]
+        if graph.branches[k].a != graph.branches[k].b or before < 0 or after >= len(walk):
+            continue
+        if walk[before][0] != walk[after][0]:
+            return k
+    return None
 
 
 def _oriented(graph: _Graph, k: int, rev: bool) -> np.ndarray:

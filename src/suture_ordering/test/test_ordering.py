@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from scipy.ndimage import median_filter
 from scipy.spatial import cKDTree
 
 from suture_common import messages, topics
@@ -929,6 +930,22 @@ def test_a_tip_a_step_from_its_loops_crossing_is_walked_round_the_loop_the_way_i
     branching within one step of the tip now has the walk through the hook compared, and the
     least-turning walk goes on the way the cut end points."""
     check_stored_stereo_frame("hooked_tip_a_step_from_its_loops_crossing.npz")
+
+
+def test_a_small_loop_crossed_at_the_tip_is_gone_round_the_way_the_tip_arm_enters_it():
+    """A simulator frame (hooked, 640x480, true masks): 10 px from the cut tip the thread crosses
+    itself and closes a loop of 15 px, 5 px across. The turn at each pass of the crossing was
+    measured over one step (8 px) of the loop, past its half, where both ways round point the
+    same way, and the walk went round against the thread in both views (ordered backwards). At
+    a loop entered and left through a crossing, the turn is measured within a third of the loop.
+    The loop is narrower than the 3 px tolerance of ``check_follows``, so each of the first 80
+    points is matched to its nearest true sample (a median over 5 points: at the crossing the
+    nearest sample may lie on the other pass), and these must never fall back."""
+    ordering, stored = order_stored_frame("hooked_small_loop_crossed_at_the_tip.npz")
+    for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
+        check_follows(sequence, truth.astype(float), tolerance=3.0)
+        nearest = median_filter(cKDTree(truth).query(sequence[:80])[1], 5, mode="nearest")
+        assert (np.maximum.accumulate(nearest) - nearest).max() <= 2, nearest
 
 
 def test_a_hooks_loop_is_gone_round_once():
