@@ -25,9 +25,13 @@ at a junction through any branch. Of all such walks the one that turns least whe
 junction or the tip wins, then the shortest: each turn is the angle between the chords
 ``step_radius`` px along the walk before and after the pass (within a third of a loop the walk
 enters or leaves through a crossing: a longer chord cuts across the loop), so a crossing is
-crossed straight and a loop is gone round the way the tip arm enters it. Where the walk passes merged arms down to a
-loop and back, the skeleton is one line the same both ways round; the loop is gone round so that
-the walk leaves it by its arm on the stroke's side that the thread leaves by
+crossed straight and a loop is gone round the way the tip arm enters it. Passes fewer than two
+step radii apart along the walk are one place (a crossing at a shallow angle thins to two
+junctions a few pixels apart, each of which the thread passes with a small turn one way and then
+the other), its turn measured from the chord before the first to the chord after the last.
+Where the walk passes merged arms down to a loop and back, the skeleton is one line the same
+both ways round; the loop is gone round so that the walk leaves it by its arm on the stroke's
+side that the thread leaves by
 (:func:`_loop_against_side`). Over merged arms the walk's way down moves onto the tip arm and its
 way back onto the returning arm (:func:`_split_merged_arms`), rather than both down the stroke's
 centre. A branch leaves the window where its end, or its thread extended to the mask's end, lies
@@ -141,6 +145,8 @@ GUIDE_SLACK = 6.0
 #: Where a walk enters or leaves a loop, its turn is measured over at most this share of the
 #: loop's length: a longer chord cuts across the loop and no longer points the way it leaves.
 LOOP_CHORD = 1.0 / 3.0
+#: Passes of junctions fewer than this many chord reaches apart along a walk are one place.
+GROUP_SPAN = 2.0
 _OFFSETS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
@@ -483,28 +489,54 @@ def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple
     for position, ((k, rev), pixels) in enumerate(zip(walk, pieces, strict=True)):
         if position and graph.kind[graph.branches[k].b if rev else graph.branches[k].a] != "end":
             passes.append(count - 1)
-            loop = _crossed_loop(graph, walk, position)
+            loop = _crossed_loop(graph, walk, position, reach)
             reaches.append(reach if loop is None else min(reach, LOOP_CHORD * graph.branches[loop].length))
         count += len(pixels)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    at, reach = along[passes], np.asarray(reaches)
-    before = path[passes] - path[np.searchsorted(along, np.maximum(at - reach, 0.0))]
-    after = path[np.minimum(np.searchsorted(along, at + reach), len(path) - 1)] - path[passes]
+    first, last, reach = _places_passed(np.asarray(passes, dtype=int), along, np.asarray(reaches))
+    before = path[first] - path[np.searchsorted(along, np.maximum(along[first] - reach, 0.0))]
+    after = path[np.minimum(np.searchsorted(along, along[last] + reach), len(path) - 1)] - path[last]
     norms = np.hypot(*before.T) * np.hypot(*after.T)
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
     turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
     return float(turns.sum()), path
 
 
-def _crossed_loop(graph: _Graph, walk: list[tuple[int, bool]], position: int) -> int | None:
+def _places_passed(
+    passes: np.ndarray, along: np.ndarray, reaches: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Passes (indices into a walk's pixels, ``along``: the arc at each pixel) closer to the
+    previous one than ``GROUP_SPAN`` chord reaches (``reaches``, per pass), merged into one: a
+    crossing that thinning split into two junctions a few pixels apart is one place, and the
+    thread's turn there is measured across both. Returns each place's first and last pass and
+    its chord reach (the least of its passes')."""
+    if len(passes) < 2:
+        return passes, passes, reaches
+    apart = np.diff(along[passes]) >= GROUP_SPAN * np.minimum(reaches[1:], reaches[:-1])
+    starts = np.concatenate([[True], apart])
+    group = np.cumsum(starts) - 1
+    first = passes[starts]
+    last = passes[np.concatenate([np.flatnonzero(starts)[1:] - 1, [len(passes) - 1]])]
+    reach = np.full(len(first), np.inf)
+    np.minimum.at(reach, group, reaches)
+    return first, last, reach
+
+
+def _crossed_loop(graph: _Graph, walk: list[tuple[int, bool]], position: int, reach: float) -> int | None:
     """The loop that ``walk`` enters or leaves where it passes from branch ``position - 1`` to
-    ``position``, when the thread crosses itself there (it comes to the loop by one branch and
-    leaves by another; a walk back along the branch it came by is a racket's neck); else None."""
+    ``position``, when the thread crosses itself there: it comes to the loop by one branch and
+    leaves by another, or by one branch shorter than ``GROUP_SPAN`` x ``reach`` that it walks
+    both ways (the crossing thinned to two junctions) between two others. A walk back along a
+    longer branch is a racket's neck: None, as where no loop is entered or left."""
     for loop in (position, position - 1):  # the pass enters the loop, or leaves it
         before, after, k = loop - 1, loop + 1, walk[loop][0]
         if graph.branches[k].a != graph.branches[k].b or before < 0 or after >= len(walk):
             continue
+        if walk[before][0] == walk[after][0] and graph.branches[walk[before][0]].length < GROUP_SPAN * reach:
+            before, after = before - 1, after + 1
+            if before < 0 or after >= len(walk):
+                continue
         if walk[before][0] != walk[after][0]:
             return k
     return None
