@@ -949,9 +949,10 @@ def test_a_loop_crossed_at_the_tip_is_gone_round_the_way_the_tip_arm_enters_it(n
       half, where both ways round point the same way: at a loop entered and left through a
       crossing, the turn is measured within a third of the loop.
     - loop_crossing_thinned_to_two_junctions: a loop of 58 px whose crossing, at 35 degrees,
-      thins to two junctions 8 px apart. Each pass of a junction turned by 15-30 degrees, the
-      way across the crossing by less, and the way round against the thread turned less in
-      sum: passes closer than two steps are one place, the turn measured across it.
+      thins to two junctions 8 px apart. The thread passes each junction with a turn of 15-30
+      degrees, one way and then the other, and summed over four such turns the way across the
+      crossing turned more than the way round against the thread: passes closer than two steps
+      are one place, the turn measured across it.
     - small_loop_behind_a_thinned_crossing: a loop of 15 px behind a crossing thinned to two
       junctions 3 px apart: one place, whose turn is measured within a third of the loop.
 
