@@ -159,6 +159,11 @@ class _Branch:
     b: int
 
     @property
+    def is_loop(self) -> bool:
+        """Whether the branch runs from a node back to itself."""
+        return self.a == self.b
+
+    @property
     def length(self) -> float:
         return float(np.hypot(*np.diff(self.pixels, axis=0).T).sum()) if len(self.pixels) > 1 else 0.0
 
@@ -303,7 +308,7 @@ def _walks(graph: _Graph, spur: float, passing: frozenset[int] = frozenset()) ->
         else:
             options = [o for o in incident.get(node, []) if not walk or o != (walk[-1][0], not walk[-1][1])]
         for k, rev in options:
-            if uses[k] >= (1 if branches[k].a == branches[k].b else 2):  # a loop is gone round once
+            if uses[k] >= (1 if branches[k].is_loop else 2):  # a loop is gone round once
                 continue
             uses[k] += 1
             walk.append((k, rev))
@@ -494,9 +499,9 @@ def _turning(graph: _Graph, walk: list[tuple[int, bool]], reach: float) -> tuple
         count += len(pixels)
     path = np.vstack(pieces).astype(np.float64)
     along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
-    first, last, reach = _places_passed(np.asarray(passes, dtype=int), along, np.asarray(reaches))
-    before = path[first] - path[np.searchsorted(along, np.maximum(along[first] - reach, 0.0))]
-    after = path[np.minimum(np.searchsorted(along, along[last] + reach), len(path) - 1)] - path[last]
+    first, last, chord = _places_passed(np.asarray(passes, dtype=int), along, np.asarray(reaches))
+    before = path[first] - path[np.searchsorted(along, np.maximum(along[first] - chord, 0.0))]
+    after = path[np.minimum(np.searchsorted(along, along[last] + chord), len(path) - 1)] - path[last]
     norms = np.hypot(*before.T) * np.hypot(*after.T)
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(norms, 1e-9)
     turns = np.where(norms > 0, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
@@ -531,7 +536,7 @@ def _crossed_loop(graph: _Graph, walk: list[tuple[int, bool]], position: int, re
     longer branch is a racket's neck: None, as where no loop is entered or left."""
     for loop in (position, position - 1):  # the pass enters the loop, or leaves it
         before, after, k = loop - 1, loop + 1, walk[loop][0]
-        if graph.branches[k].a != graph.branches[k].b or before < 0 or after >= len(walk):
+        if not graph.branches[k].is_loop or before < 0 or after >= len(walk):
             continue
         if walk[before][0] == walk[after][0] and graph.branches[walk[before][0]].length < GROUP_SPAN * reach:
             before, after = before - 1, after + 1
@@ -632,7 +637,7 @@ def _loop_against_side(
     tell nothing. ``sides``: the stroke's sides found so far, by (branch, reversed, next)."""
     for position in range(1, len(walk) - 1):
         (neck, rev), (loop, loop_rev), (back, back_rev) = walk[position - 1 : position + 2]
-        if back != neck or back_rev == rev or graph.branches[loop].a != graph.branches[loop].b:
+        if back != neck or back_rev == rev or not graph.branches[loop].is_loop:
             continue
         if sum(graph.branches[k].length for k, _ in walk[: position - 1]) >= reach:
             continue  # the tip's arm joins the stroke from aside: a crossing, not merged arms
@@ -673,7 +678,7 @@ def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) ->
             found.append((first, first + 1))
         elif first + 2 < len(walk) and walk[first + 2] == (k, not rev):
             loop = graph.branches[walk[first + 1][0]]
-            if loop.a == loop.b and sum(graph.branches[j].length for j, _ in walk[:first]) < reach:
+            if loop.is_loop and sum(graph.branches[j].length for j, _ in walk[:first]) < reach:
                 found.append((first, first + 2))
     return found
 
