@@ -37,7 +37,9 @@ both call. Steps (paper Section II.B end and II.C):
    and ``length``;
 6. the grasp pose ``grasp_arc_length`` from the cut tip (``suture_common.grasp``), and its
    uncertainty (:mod:`suture_reconstruction.uncertainty`): a thread whose reconstruction starts
-   more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see, one
+   more than ``max_tip_gap_mm`` after the cut tip, a grasp point a view does not see (with
+   images, also where the thread runs under an instrument before reaching it:
+   :func:`~suture_reconstruction.ends.refuse_grasp_under_occluder`), one
    uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
    holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or before
    which a stretch of 20 mm of arc is more than ``max_arc_image_ratio`` times the length its image
@@ -76,9 +78,15 @@ from suture_reconstruction.ends import (
     end_disparity_gaps_px,
     match_unanchored_ends,
     refuse_contradicted_ends,
+    refuse_grasp_under_occluder,
     sequence_anchor_deg,
 )
-from suture_reconstruction.errors import NoStereoOverlapError, ReconstructionError, TooFewPointsError
+from suture_reconstruction.errors import (
+    NoStereoOverlapError,
+    ReconstructionError,
+    ThreadTooShortError,
+    TooFewPointsError,
+)
 from suture_reconstruction.image_evidence import seen_in_image
 from suture_reconstruction.not_seen import not_seen_flags, observed_samples, with_not_seen
 from suture_reconstruction.pairing import (
@@ -420,14 +428,16 @@ def reconstruct(
     NoStereoOverlapError
         Fewer than ``params.min_pairs`` left samples pair with the right sequence.
     ThreadTooShortError
-        The reconstructed thread is shorter than ``params.grasp_arc_length``.
+        The reconstructed thread is shorter than ``params.grasp_arc_length`` (GraspNotSeenError
+        instead, with ``images``, where it ends running under an instrument).
     TipNotReconstructedError
         The reconstructed thread starts more than ``params.max_tip_gap_mm`` of arc after the
         cut tip (the grasp point would be counted from a later point).
     ImagePairError
         ``images`` that do not fit the camera.
     GraspNotSeenError
-        The grasp point lies on a stretch a view does not see (``params.refuse_unseen_grasp``).
+        The grasp point lies on a stretch a view does not see (``params.refuse_unseen_grasp``), or
+        past where the thread runs under an instrument, short of the grasp point.
     UncertainGraspError
         The grasp point's uncertainty exceeds ``params.max_grasp_uncertainty_mm``.
     UnexplainedArcError
@@ -501,7 +511,13 @@ def reconstruct(
     timer.lap("optimisation")
     curve = fit_curve(vertices[shape.indices], params.curve_smoothing, params.arc_smoothing)
     path = curve.resample(params.path_step)
-    grasp = grasp_pose(curve, params.grasp_arc_length)
+    try:
+        grasp = grasp_pose(curve, params.grasp_arc_length)
+    except ThreadTooShortError:
+        if images is not None:
+            length, wanted = curve.length, params.grasp_arc_length
+            refuse_grasp_under_occluder(images, left, disparity, camera, length, wanted)
+        raise
     refuse_late_start(tip_gap_mm(curve, left, camera), params.max_tip_gap_mm)
     timer.lap("curve_and_grasp")
     views = (left, right)

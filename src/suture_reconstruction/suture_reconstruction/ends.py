@@ -58,7 +58,7 @@ from scipy.ndimage import minimum_filter1d
 
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
-from suture_reconstruction.errors import EndDisparityError
+from suture_reconstruction.errors import EndDisparityError, GraspNotSeenError
 from suture_reconstruction.pairing import Disparity
 from suture_reconstruction.photometric import PhotometricParams, match_along_rows, prepare_images
 from suture_reconstruction.sequences import Resampled
@@ -258,6 +258,37 @@ def at_occluder(
     centre = last[0] + (PATCH_HALF_PX + BEYOND_GAP_PX) * outward / length
     beyond = window_disparity(images, centre, end_disparity, min_texture=MIN_STRUCTURE)
     return beyond is not None and beyond - end_disparity > NEARER_PX
+
+
+def refuse_grasp_under_occluder(
+    images: tuple[np.ndarray, np.ndarray],
+    left: Resampled,
+    disparity: Disparity,
+    camera: StereoCamera,
+    length_m: float,
+    grasp_arc_length_m: float,
+) -> None:
+    """Raise :class:`~suture_reconstruction.errors.GraspNotSeenError` when the thread, reconstructed
+    ``length_m`` long (shorter than ``grasp_arc_length_m``), ends where it runs under something
+    nearer the camera: the far end of ``left`` (the left sequence resampled every 1 px, its last
+    sample that ``disparity`` supports) lies away from the image border and :func:`at_occluder`
+    holds there. ``images``: the rectified (left, right) views."""
+    supported = np.flatnonzero(left.observed & disparity.supported)
+    if supported.size < 2:
+        return
+    points = left.points[:, :2]
+    end = supported[-1]
+    if _at_border(points[end], camera):
+        return
+    if at_occluder(images, points, end, -1, float(disparity.value[end])):
+        raise GraspNotSeenError(
+            f"the thread runs under something nearer the camera (an instrument) "
+            f"{length_m * 1000:.1f} mm from the cut tip, short of the grasp point "
+            f"{grasp_arc_length_m * 1000:.1f} mm along it, which lies on thread the views do not "
+            "see there (hidden, or beyond the instrument where the ordering did not bridge it); "
+            "move the occluder or the camera, or lower grasp_arc_length",
+            None,
+        )
 
 
 def _at_border(uv: np.ndarray, camera: StereoCamera) -> bool:

@@ -67,7 +67,8 @@ class ImagePairError(ReconstructionError):
 
 class GraspRefusedError(ReconstructionError):
     """The thread was reconstructed but its grasp point is not trusted; ``uncertainty`` holds the
-    :class:`~suture_reconstruction.uncertainty.GraspUncertainty` that says why."""
+    :class:`~suture_reconstruction.uncertainty.GraspUncertainty` that says why (None where the
+    thread ends under an instrument before the grasp point, which then has no estimate)."""
 
     def __init__(self, message: str, uncertainty: object) -> None:
         super().__init__(message)

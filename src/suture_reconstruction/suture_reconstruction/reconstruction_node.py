@@ -36,7 +36,8 @@ cannot be reconstructed (too few points, no stereo overlap, thread shorter than
 the reserve, NaN, missing or unusable camera_info) is dropped with one warning
 per reason and ``log_throttle`` seconds, and the node serves the next one. So is a
 frame whose grasp point is refused (:mod:`suture_reconstruction.uncertainty`): a
-grasp point a view does not see (GraspNotSeenError), one uncertain by more than
+grasp point a view does not see (GraspNotSeenError; also where the thread runs under an
+instrument before the grasp point, rather than ThreadTooShortError), one uncertain by more than
 ``max_grasp_uncertainty_mm`` (UncertainGraspError), one on a thread whose reconstruction
 starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
 which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread

@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 
 from suture_common.camera import StereoCamera
-from suture_reconstruction import EndDisparityError, ReconstructionParams, core, reconstruct
+from suture_reconstruction import (
+    EndDisparityError,
+    GraspNotSeenError,
+    ReconstructionParams,
+    ThreadTooShortError,
+    core,
+    reconstruct,
+)
 from suture_reconstruction.curve import fit_curve
 from suture_reconstruction.ends import (
     END_WINDOW,
@@ -249,3 +256,32 @@ def test_an_end_under_an_instrument_is_not_matched_in_the_images(exact_views, te
     assert match_unanchored_ends(prepared, samples, fit, camera, images) is None
     assert not at_occluder(tissue, samples.points, 0, 1, true_disparity)
     assert match_unanchored_ends(prepare_images(*tissue), samples, fit, camera, tissue) is not None
+
+
+def test_a_thread_under_an_instrument_short_of_the_grasp_point_is_refused_as_not_seen(
+    exact_views, textured_pair
+):
+    """A thread at 30 degrees to the rows whose stretch from 40 mm on lies under an instrument
+    shaft 15 mm nearer the camera: both views' sequences end at the shaft's edge, 10 mm short of
+    the grasp point, which is hidden; the refusal says so (GraspNotSeenError). The same sequences
+    on bare tissue end where the thread does: ThreadTooShortError."""
+    camera = StereoCamera.default(640, 480)
+    seen = straight_thread(30.0)[: round(0.040 / 5e-5)]
+    left, right = exact_views(camera, seen)
+    tissue = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, seen)
+    shaft_disparity = float(camera.disparity(DEPTH - 0.015))
+    covered = []
+    for image, shift in zip(tissue, (0.0, shaft_disparity), strict=True):
+        beyond = float(left[-1, 0]) - (np.arange(camera.width) + shift)  # 0 at the shaft's edge
+        inside = (beyond > 1.0) & (beyond < 60.0)
+        shade = 120.0 + 100.0 * np.sin(np.pi * beyond[inside] / 60.0)  # a metal cylinder's shading
+        shaded = image.copy()
+        shaded[:, inside] = shade.astype(np.uint8)[None, :, None]
+        covered.append(shaded)
+    with pytest.raises(GraspNotSeenError, match="under something nearer the camera") as refused:
+        reconstruct(left, right, camera, images=(covered[0], covered[1]))
+    assert refused.value.uncertainty is None
+    with pytest.raises(ThreadTooShortError):
+        reconstruct(left, right, camera, images=tissue)
+    with pytest.raises(ThreadTooShortError):
+        reconstruct(left, right, camera)  # without images nothing tells
