@@ -282,7 +282,7 @@ def refuse_grasp_under_occluder(
         return
     if at_occluder(images, points, end, -1, float(disparity.value[end])):
         raise GraspNotSeenError(
-            f"the thread runs under something nearer the camera (an instrument) "
+            "the thread runs under something nearer the camera (an instrument) "
             f"{length_m * 1000:.1f} mm from the cut tip, short of the grasp point "
             f"{grasp_arc_length_m * 1000:.1f} mm along it, which lies on thread the views do not "
             "see there (hidden, or beyond the instrument where the ordering did not bridge it); "
