@@ -70,6 +70,24 @@ def with_thread(images: tuple[np.ndarray, np.ndarray], camera: StereoCamera, cur
     return drawn[0], drawn[1]
 
 
+def with_shaft(
+    images: tuple[np.ndarray, np.ndarray], camera: StereoCamera, edge_u: float, side: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The images with an instrument shaft 60 px wide and 15 mm nearer the camera than the thread
+    (DEPTH) lying along the columns, its edge at the left view's column ``edge_u`` and its body
+    on that ``side`` of it (1: right, -1: left), shaded as a metal cylinder."""
+    shaft_disparity = float(camera.disparity(DEPTH - 0.015))
+    covered = []
+    for image, shift in zip(images, (0.0, shaft_disparity), strict=True):
+        across = side * (np.arange(camera.width) + shift - edge_u)  # 0 at the shaft's edge
+        inside = (across > 1.0) & (across < 60.0)
+        shade = 120.0 + 100.0 * np.sin(np.pi * across[inside] / 60.0)
+        shaded = image.copy()
+        shaded[:, inside] = shade.astype(np.uint8)[None, :, None]
+        covered.append(shaded)
+    return covered[0], covered[1]
+
+
 def test_the_anchor_is_the_steepest_stretch_held_over_5_mm():
     camera = StereoCamera.default(640, 480)
     assert anchor_row_angle_deg(fit_curve(straight_thread(3.0), 0.0), camera) == pytest.approx(3.0, abs=0.5)
@@ -237,15 +255,7 @@ def test_an_end_under_an_instrument_is_not_matched_in_the_images(exact_views, te
         len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
     )
     tissue = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
-    shaft_disparity = float(camera.disparity(DEPTH - 0.015))
-    images = []
-    for image, shift in zip(tissue, (0.0, shaft_disparity), strict=True):
-        across = np.arange(camera.width) + shift - float(left[0, 0])  # 0 at the shaft's edge
-        inside = (across > 1.0) & (across < 60.0)
-        shade = 120.0 + 100.0 * np.sin(np.pi * across[inside] / 60.0)  # a metal cylinder's shading
-        covered = image.copy()
-        covered[:, inside] = shade.astype(np.uint8)[None, :, None]
-        images.append(covered)
+    images = with_shaft(tissue, camera, float(left[0, 0]), side=1)
     prepared = prepare_images(*images)
     tip = np.arange(5)
     tangents = np.gradient(samples.points, axis=0)
@@ -269,17 +279,9 @@ def test_a_thread_under_an_instrument_short_of_the_grasp_point_is_refused_as_not
     seen = straight_thread(30.0)[: round(0.040 / 5e-5)]
     left, right = exact_views(camera, seen)
     tissue = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, seen)
-    shaft_disparity = float(camera.disparity(DEPTH - 0.015))
-    covered = []
-    for image, shift in zip(tissue, (0.0, shaft_disparity), strict=True):
-        beyond = float(left[-1, 0]) - (np.arange(camera.width) + shift)  # 0 at the shaft's edge
-        inside = (beyond > 1.0) & (beyond < 60.0)
-        shade = 120.0 + 100.0 * np.sin(np.pi * beyond[inside] / 60.0)  # a metal cylinder's shading
-        shaded = image.copy()
-        shaded[:, inside] = shade.astype(np.uint8)[None, :, None]
-        covered.append(shaded)
+    covered = with_shaft(tissue, camera, float(left[-1, 0]), side=-1)
     with pytest.raises(GraspNotSeenError, match="under something nearer the camera") as refused:
-        reconstruct(left, right, camera, images=(covered[0], covered[1]))
+        reconstruct(left, right, camera, images=covered)
     assert refused.value.uncertainty is None
     with pytest.raises(ThreadTooShortError):
         reconstruct(left, right, camera, images=tissue)
