@@ -571,7 +571,6 @@ def _stroke_side(
     after: list[tuple[int, bool]],
     reach: float,
     thread: cKDTree,
-    to_mask: bool = True,
 ) -> tuple[float, np.ndarray, np.ndarray] | None:
     """The side of the merged stroke (the branch pass ``stroke``) that the thread leaves it by
     (:func:`_loop_against_side`): the signed offset of the leaving line from the stroke's
@@ -584,14 +583,9 @@ def _stroke_side(
     the thread is one or two pixels wide; those offsets are the size of the side sought. The
     stroke is measured by its own mask pixels (not the thread's past its end) within
     ``reach / 2`` of its first ``SIDE_OVER`` ``reach`` of arc, where the thread leaves it: a
-    line extended along a long stroke strays from it by a pixel where the thread bends gently.
-    ``to_mask=False``: the line is fitted to the skeleton from 1 px to 2 ``reach`` past the
-    stroke's end (where merged arms are moved apart, :func:`_split_merged_arms`)."""
+    line extended along a long stroke strays from it by a pixel where the thread bends gently."""
     pixels = _oriented(graph, *stroke)
     beyond = np.vstack([pixels[:1], *[_oriented(graph, k, r) for k, r in after]])
-    if not to_mask:
-        leaving = _within(beyond, 1.0, 2 * reach)
-        return _side_of_line(leaving, _near(thread, pixels, reach / 2)) if len(leaving) >= 3 else None
     leaving = _within(beyond, LEAVE_FROM * reach, LEAVE_TO * reach)
     if len(leaving) < 3:
         return None
@@ -692,7 +686,7 @@ def _split_merged_arms(
     background at the pixel) less the leaving thread's, which is half the arms' spacing."""
     pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
     for first, back in _merged_passes(graph, walk, reach):
-        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread, to_mask=False)
+        found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
         if found is None or abs(found[0]) < SPLIT_SIDE:
             continue
         side, _, axis = found

@@ -811,6 +811,24 @@ def test_small_loop_at_the_end_of_merged_arms_has_its_arms_compared_before_its_h
     check_stored_stereo_frame("hooked_small_loop_after_merged_arms_1280.npz", coverage=0.9)
 
 
+@pytest.mark.parametrize(
+    "name",
+    [
+        "hooked_hairpin_merged_arms_split_by_leaving_thread.npz",
+        "hooked_loop_merged_arms_split_by_leaving_thread.npz",
+    ],
+)
+def test_merged_arms_are_moved_apart_to_the_side_the_leaving_threads_mask_gives(name):
+    """Simulator frames (hooked, 640x480, true masks): merged arms from the tip down to a
+    hairpin's bend, and down to a loop. The side the thread leaves the stroke by, read on the
+    skeleton near the stroke, was under half a pixel (-0.35, -0.48) in the left view, so the walk
+    stayed on the stroke's centre, the tip arm's outer pixels lay off it and the ordering refused
+    (UnexplainedTipError); in the hairpin's right view it had the wrong sign. Read on the leaving
+    thread's own mask pixels, as the way round a loop is, it is 1.7-1.9 px, and both views walk
+    each arm."""
+    check_stored_stereo_frame(name)
+
+
 def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
     """A simulator frame (hooked, 640x480, true masks): a hairpin whose arms lie a pixel apart
     and touch diagonally next to the cut tip, so that thinning leaves a cycle 2 px long between
