@@ -72,6 +72,7 @@ walk stands: it starts at the hint, the right view's at a pixel matched by dispa
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -679,13 +680,23 @@ def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) ->
 
 def _split_merged_arms(
     graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, depth: np.ndarray
-) -> np.ndarray:
+) -> tuple[np.ndarray, list[int]]:
     """``walk``'s pixels (N, 2) float64, those of merged arms moved from the stroke's centre
     onto the arms: the way back to the side the thread leaves by (:func:`_stroke_side`), the
     way down to the other, each by the stroke's half width ``depth`` (the distance to the
-    background at the pixel) less the leaving thread's, which is half the arms' spacing."""
+    background at the pixel) less the leaving thread's, which is half the arms' spacing; and the
+    indices into them where the walk turns back at a free end (a hairpin's bend) at the end of a
+    branch at least ``SMOOTHING`` px long (a shorter one is a spur of the thinning or the stub
+    of an arm the mask lost, which the smoothing averages away)."""
     pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
-    for first, back in _merged_passes(graph, walk, reach):
+    passes = _merged_passes(graph, walk, reach)
+    ends = np.cumsum([len(piece) for piece in pieces]) - 1
+    turns = [
+        int(ends[first])
+        for first, back in passes
+        if back == first + 1 and graph.branches[walk[first][0]].length >= SMOOTHING
+    ]
+    for first, back in passes:
         found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
         if found is None or abs(found[0]) < SPLIT_SIDE:
             continue
@@ -706,7 +717,7 @@ def _split_merged_arms(
             ints = np.rint(pixels).astype(int)
             shift = np.clip(depth[ints[:, 1], ints[:, 0]] - half, 0.0, 2 * half)
             pieces[position] = pixels + (sign * math.copysign(1.0, side) * shift)[:, None] * normals
-    return np.vstack(pieces)
+    return np.vstack(pieces), turns
 
 
 def _resampled(points: np.ndarray, spacing: float = 1.0) -> np.ndarray:
@@ -861,30 +872,51 @@ def hook_walk(
             scores = [score for score, _ in scored]
             both = _both_views(smoothed, scores, against, other, scale, (best, guided))
         best, other_choice = (guided, None) if both is None else both
-    path = _split_merged_arms(graph, walks[best], step, thread, depth)
+    path, turns = _split_merged_arms(graph, walks[best], step, thread, depth)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
         tail = np.rint(path[-max(2, len(path) // 3) :]).astype(int)
         half = max(0.0, float(np.median(depth[tail[:, 1], tail[:, 0]])) - 0.5)
-        path = _to_tip(own, path, np.asarray(tip, dtype=np.float64) - (u0, v0), step, half)
+        moved = _to_tip(own, path, np.asarray(tip, dtype=np.float64) - (u0, v0), step, half)
+        turns = [turn + len(moved) - len(path) for turn in turns]
+        path = moved
     nodes = [graph.tip] + [graph.branches[k].a if rev else graph.branches[k].b for k, rev in walks[best]]
     revisits = len({places[n] for n in nodes}) < len(nodes)
-    # Skeleton pixels zigzag by a pixel and curl at a free end; the walk's U-turn there
-    # becomes the bend's centre.
-    path = _smoothed(path, keep_start=guide is not None)
+    path = _smoothed(path, keep_start=guide is not None, turns=turns)
     alternatives = Alternatives(tuple(smoothed), tuple(score for score, _ in scored), tuple(against), best)
     return _Walked(path + offset, revisits, alternatives, other_choice)
 
 
-def _smoothed(path: np.ndarray, keep_start: bool) -> np.ndarray:
-    """``path`` ((N, 2) float64) averaged over ``SMOOTHING`` points. The average pulls the first
-    point inward along the path (about 0.9 px); with ``keep_start`` the path is first continued
-    past its start by its own points mirrored through it, so that a straight start stays put:
-    a walk from the other view's tip (already smoothed once) starts at that tip's match."""
+def _smoothed(path: np.ndarray, keep_start: bool, turns: list[int] | tuple[int, ...] = ()) -> np.ndarray:
+    """``path`` ((N, 2) float64) averaged over ``SMOOTHING`` points (skeleton pixels zigzag by a
+    pixel). The average pulls the first point inward along the path (about 0.9 px); with
+    ``keep_start`` the path is first continued past its start by its own points mirrored
+    through it, so that a straight start stays put: a walk from the other view's tip (already
+    smoothed once) starts at that tip's match. At each of ``turns`` (indices where the walk
+    turns back at a free end, a hairpin's bend, at the mask's end) the path is cut and each side
+    smoothed as its own end kept in place: averaged across the U-turn, the bend would be pulled
+    2-3 px in from where the walk turned, the bend's rim left off the sequence and its arc cut
+    short. Kept at the mask's end, the bend lies half the thread's width beyond the centreline's,
+    which about makes up the arc that the walk's sharp turn cuts from the bend's round one."""
     lead = SMOOTHING // 2
-    if not keep_start or len(path) <= lead:
-        return uniform_filter1d(path, SMOOTHING, axis=0, mode="nearest")
-    mirrored = 2 * path[:1] - path[lead:0:-1]
-    return uniform_filter1d(np.vstack([mirrored, path]), SMOOTHING, axis=0, mode="nearest")[lead:]
+    cuts = [0, *sorted(turn for turn in turns if lead < turn < len(path) - 1 - lead), len(path) - 1]
+    legs = []
+    for number, (start, stop) in enumerate(itertools.pairwise(cuts)):
+        leg = _smoothed_leg(path[start : stop + 1], keep_start or number > 0, number < len(cuts) - 2)
+        legs.append(leg if number == 0 else leg[1:])
+    return np.vstack(legs)
+
+
+def _smoothed_leg(path: np.ndarray, keep_start: bool, keep_end: bool) -> np.ndarray:
+    """``path`` ((N, 2) float64) averaged over ``SMOOTHING`` points, each end it keeps
+    (``keep_start``, ``keep_end``) continued past it by the path's own points mirrored through
+    it, so that a straight end stays put."""
+    lead = SMOOTHING // 2
+    keep_start, keep_end = keep_start and len(path) > lead, keep_end and len(path) > lead
+    before = [2 * path[:1] - path[lead:0:-1]] if keep_start else []
+    after = [2 * path[-1:] - path[-2 : -lead - 2 : -1]] if keep_end else []
+    smoothed = uniform_filter1d(np.vstack([*before, path, *after]), SMOOTHING, axis=0, mode="nearest")
+    first = lead if keep_start else 0
+    return smoothed[first : first + len(path)]
 
 
 def _both_views(

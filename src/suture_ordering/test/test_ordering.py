@@ -31,6 +31,7 @@ from suture_ordering import (
 )
 from suture_ordering.cleaning import fill_holes_remove_specks
 from suture_ordering.core import _tip_arcs
+from suture_ordering.hooks import _smoothed
 from suture_ordering.stereo_fill import continue_from_other_view, splice_skipped_stretch
 from suture_ordering.tip import free_ends, right_tip_across_gap, tip_across_gap, tip_from_hint
 
@@ -827,6 +828,28 @@ def test_merged_arms_are_moved_apart_to_the_side_the_leaving_threads_mask_gives(
     thread's own mask pixels, as the way round a loop is, it is 1.7-1.9 px, and both views walk
     each arm."""
     check_stored_stereo_frame(name)
+
+
+def test_a_walks_turn_at_a_hairpins_bend_stays_where_the_walk_turned():
+    # Down one arm to the bend and back along the other, 4 px apart: averaged across the U-turn,
+    # the bend is pulled 1.7 px in; cut there and each side smoothed as its own end, it stays.
+    down = np.column_stack([np.arange(0.0, 30.0), np.zeros(30)])
+    back = np.column_stack([np.arange(29.0, -1.0, -1.0), np.full(30, 4.0)])
+    path = np.vstack([down, [[30.0, 2.0]], back])
+    averaged, kept = _smoothed(path, keep_start=False), _smoothed(path, keep_start=False, turns=[30])
+    assert averaged[:, 0].max() < 28.5
+    np.testing.assert_allclose(kept[30], path[30])
+    assert kept.shape == path.shape
+    np.testing.assert_allclose(kept[5:25], averaged[5:25])  # away from the bend: the same
+    np.testing.assert_allclose(kept[36:56], averaged[36:56])
+
+
+def test_a_hairpins_bend_is_on_the_sequence_so_the_tip_check_explains_it():
+    """A simulator frame (hooked, 640x480, true masks): a hairpin 15 px long, arms 4 px apart. The
+    walk turned at the bend's end, but the smoothing averaged across the U-turn and pulled the
+    left view's bend 2.5 px in; 11 px of the bend's rim lay off the sequence and the ordering
+    refused (UnexplainedTipError)."""
+    check_stored_stereo_frame("hooked_hairpin_bend_kept_through_the_smoothing.npz")
 
 
 def test_arms_touching_beside_the_tip_are_one_place_of_the_hooks_walk():
