@@ -15,9 +15,11 @@ import concurrent.futures
 import contextlib
 import importlib
 import math
+import os
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 import rclpy
@@ -45,6 +47,10 @@ N = TypeVar("N", bound=Node)
 
 STOP_POLL_S = 0.1
 """Longest wait of a node's spin loop before it looks at the stop flag again (s)."""
+
+TEARDOWN_TIMEOUT_S = 10.0
+"""Longest the middleware's teardown (executor, node, context) may take once a node's own
+clean-up is done (s); past it the process exits with its status without waiting for it."""
 
 SENSOR_DATA_QOS: QoSProfile = qos_profile_sensor_data
 """Images: best effort, keep last 5, volatile (rclpy's sensor-data profile)."""
@@ -281,7 +287,9 @@ def run_node(
     signal, an external shutdown or ``finished(node)``. Then ``finish(node)`` runs while ROS is
     still up (a recorder finalises its bag, the executor tells the arm to hold), and the
     executor, the node and the context are shut down in that order. A signal at any moment,
-    during construction included, leaves through this path: no traceback, exit status 0.
+    during construction included, leaves through this path: no traceback, exit status 0. Should
+    that teardown stall in the middleware for :data:`TEARDOWN_TIMEOUT_S`, the process ends there
+    with its status and a line on standard error.
 
     A ``ValueError`` or rclpy ``ParameterException`` while building the node (a bad
     parameter) and an ``OSError`` from ``finish`` (worded by ``finish_error``) are one line on
@@ -292,12 +300,13 @@ def run_node(
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
         node: N | None = None
         executor: Executor | None = None
+        status = 1  # an exception leaving the body
         try:
             try:
                 node = make_node()
             except (ValueError, ParameterException) as exc:
                 print(f"{name}: {exc}", file=sys.stderr)
-                return 1
+                return status
             executor = make_executor()
             executor.add_node(node)
             with contextlib.suppress(ExternalShutdownException):
@@ -308,11 +317,40 @@ def run_node(
                     finish(node)
                 except OSError as exc:
                     print(f"{name}: {finish_error(node, exc)}", file=sys.stderr)
-                    return 1
-            return 0
+                    return status
+            status = 0
+            return status
         finally:
-            if executor is not None:
-                executor.shutdown()
-            if node is not None:
-                node.destroy_node()
-            rclpy.try_shutdown()
+            with _exit_if_teardown_stalls(name, lambda: status):
+                if executor is not None:
+                    executor.shutdown()
+                if node is not None:
+                    node.destroy_node()
+                rclpy.try_shutdown()
+
+
+@contextlib.contextmanager
+def _exit_if_teardown_stalls(name: str, status: Callable[[], int]) -> Iterator[None]:
+    """Run the body (the middleware's teardown); if it has not returned after
+    :data:`TEARDOWN_TIMEOUT_S`, say so on standard error and end the process with ``status()``
+    at once. Under load the middleware's teardown can stall (a DDS participant being deleted while
+    its threads wait on each other); by then the node's work is done and its files are closed,
+    and a node that never exits keeps its launcher and the operator waiting."""
+
+    def give_up() -> None:
+        print(
+            f"{name}: the middleware's shutdown did not finish within {TEARDOWN_TIMEOUT_S:g} s; "
+            "exiting without it",
+            file=sys.stderr,
+        )
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status())
+
+    watchdog = threading.Timer(TEARDOWN_TIMEOUT_S, give_up)
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        yield
+    finally:
+        watchdog.cancel()

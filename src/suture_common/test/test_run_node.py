@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -120,3 +123,34 @@ def test_a_callback_exception_ends_the_node_and_is_raised(executor):
     with pytest.raises(RuntimeError, match="callback failed"):
         run_node(Failing, "test_node", [], **extra)
     assert not rclpy.ok()
+
+
+STALLING_NODE = """
+import sys, time
+from rclpy.node import Node
+from suture_common import ros
+
+ros.TEARDOWN_TIMEOUT_S = 0.5
+
+
+class Stalling(Node):
+    def __init__(self):
+        super().__init__("stalling_test_node")
+
+    def destroy_node(self):  # a middleware teardown that never returns
+        time.sleep(120)
+
+
+sys.exit(ros.run_node(Stalling, "stalling_node", [], finished=lambda node: True))
+"""
+
+
+def test_a_teardown_that_stalls_ends_the_process_with_its_status_and_a_line():
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-c", STALLING_NODE], capture_output=True, text=True, timeout=90, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert time.monotonic() - started < 60  # start-up and rclpy included; the stall is 120 s
+    assert "stalling_node: the middleware's shutdown did not finish within 0.5 s" in done.stderr
+    assert "Traceback" not in done.stderr
