@@ -333,9 +333,9 @@ def run_node(
 def _exit_if_teardown_stalls(name: str, status: Callable[[], int]) -> Iterator[None]:
     """Run the body (the middleware's teardown); if it has not returned after
     :data:`TEARDOWN_TIMEOUT_S`, say so on standard error and end the process with ``status()``
-    at once. Under load the middleware's teardown can stall (a DDS participant being deleted while
-    its threads wait on each other); by then the node's work is done and its files are closed,
-    and a node that never exits keeps its launcher and the operator waiting."""
+    at once. On a loaded machine the middleware's teardown has been seen to stall for more than
+    30 s; by then the node's work is done and its files are closed, and a node that never exits
+    keeps its launcher and the operator waiting."""
 
     def give_up() -> None:
         print(
