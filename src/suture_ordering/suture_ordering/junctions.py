@@ -12,7 +12,8 @@ the thread forms here is entered first (two arms connected outside the
 junction), a crossing is crossed straight (the arm opposite ours in angular
 order), otherwise the arm that continues the thread like one arc wins; the
 step is a Hermite curve to that arm. If every arm bends sharply, the thread
-ends there (it ends on another strand): :data:`STOP`. Our tangent there is the
+ends there (it ends on another strand, or the mask lost it beyond that strand, which
+:mod:`suture_ordering.occluders` then looks for): :data:`STOP`. Our tangent there is the
 last steps' track unless the path over the last Υ (the circle through the
 points Υ and Υ/2 back and the vertex) points more than 5° elsewhere: on a
 segmenter's mask the step into a junction is often pulled towards the other

@@ -8,7 +8,11 @@ curve outside the zone, like a gap that the bridge checks refuse
 (:mod:`suture_ordering.bridging`). Before the search ends, a free node ahead
 within ``bridge_turn_max`` is taken when the smooth step to it (Hermite,
 bending less than ``bridge_bend_max``) stays in the zone and crosses the
-traversed path (:func:`across_own_path`).
+traversed path (:func:`across_own_path`). Where the search stopped at a junction whose every
+arm turns sharply onto another strand (:data:`suture_ordering.junctions.STOP`), the step must
+also leave in about our direction (its end tangent within ``bridge_turn_max`` of ours): the
+Hermite curve bends evenly onto a strand crossing ours at 70 degrees within 11 px, and the
+drawn end of our own path round the vertex counts as the pass it crosses.
 
 The search ends (and this is tried) once per search, mostly at the thread's free end, where
 nothing lies ahead: one raster test of the window (:func:`radii_ahead`) settles that before
@@ -60,6 +64,8 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
             onward = reader.tangent(point, point - vertex, consumed_flat)
             if onward is None or bend(vertex, unit, point, onward) >= params.bridge_bend_max:
                 continue
+            if branch.stopped_on_strand and turn_angles(onward[None, :], unit)[0] >= params.bridge_turn_max:
+                continue  # onto the strand whose every arm the junction found turning sharply
             curve = reader.flat(hermite(vertex, point, unit * r, onward * r))
             outside = (reader.zone_flat[curve] == 0).mean()
             if outside > MAX_OUTSIDE_ZONE or (consumed_flat[curve] != 0).sum() < 2:

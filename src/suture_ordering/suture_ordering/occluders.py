@@ -17,9 +17,13 @@ by less than ``bridge_turn_max`` from the chord, and leave it so that the turns 
 the chord differ by less than ``occluder_bend_max`` (one and two steps beyond; wider than
 ``bridge_bend_max``, since a thread hidden over tens of px may bend one way and then the other).
 Such an S (a difference of ``bridge_bend_max`` or more) is taken only where its first half is
-the bend the end already had: the chord within ``S_BEND_SLACK`` of the predicted arcs. A strand
-crossing the way fails these checks, and so does one that starts beside the line of a thread
-ending straight; the search then ends as before: stopping is safer than a bridge onto another
+the bend the end already had: the chord within ``S_BEND_SLACK`` of the predicted arcs. Pieces
+within τ_O / 2 of the end are the search's own business (gaps it bridges or refused), except
+where the search stopped at a junction because every arm there turns sharply onto another strand
+(:data:`suture_ordering.junctions.STOP`): it never looked past that strand, and a segmenter often
+loses the lower strand for a few pixels beside the upper one, so there pieces farther than r_s
+are tried too. A strand crossing the way fails these checks, and so does one that starts
+beside the line of a thread ending straight; the search then ends as before: stopping is safer than a bridge onto another
 strand. The bridged stretch is a cubic Hermite curve along both tangents, flagged as not seen
 (:func:`suture_ordering.path.advance`).
 """
@@ -147,7 +151,7 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
         point = (offset[near_entry] + end).mean(axis=0)
         chord = point - end
         length = float(np.hypot(*chord))
-        if length <= scaled.tau_o / 2:
+        if length <= (scaled.step_radius if branch.stopped_on_strand else scaled.tau_o / 2):
             continue  # within the search's own reach: its own end, or a gap it refused
         continuation = gap_exit(across, point, chord, tangent, branch.consumed)
         if continuation is None or not _bends_as_predicted(tangent, curvature, chord, continuation, params):

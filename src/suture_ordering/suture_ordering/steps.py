@@ -129,6 +129,7 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
     consumed_flat = branch.consumed.reshape(-1)
     width = thread_width(branch)
     r_s = context.scaled.step_radius
+    branch.stopped_on_strand = False
     found: list[Candidates] = []
     best = None  # per parameter set, the least cost found so far
     nodes = reader.nodes(vertex, r_s, width)
@@ -137,6 +138,7 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
         if first is not None and heading is not None and decided_across_junction(context, first, width):
             junction = junction_step(context, branch, heading, consumed_flat)
             if junction is STOP:
+                branch.stopped_on_strand = True
                 return None
             if junction is not None:
                 return junction

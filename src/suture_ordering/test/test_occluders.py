@@ -128,6 +128,26 @@ def test_seen_in_low_mask_keeps_flagged_the_part_of_a_stretch_off_the_low_mask()
     np.testing.assert_array_equal(sequence[5:15, 2], 1.0)  # the input is left as it was
 
 
+@pytest.mark.parametrize("angle_deg", [60.0, 75.0, 90.0])
+@pytest.mark.parametrize("lost_to", [315, 327])
+def test_a_thread_the_mask_lost_just_past_a_crossing_is_bridged_across_the_other_strand(angle_deg, lost_to):
+    """Our thread along row 240 from u = 100, crossed at u = 300 by a straight strand; the mask lost
+    our thread from the crossing to ``lost_to`` (a segmenter often loses the lower strand there).
+    The search neither turns onto the other strand nor stops on it: it bridges the gap."""
+    ours = np.column_stack([np.arange(100.0, 561.0), np.full(461, 240.0)])
+    t = np.radians(angle_deg)
+    other = np.array([300.0, 240.0]) + np.linspace(-200, 200, 401)[:, None] * [np.cos(t), -np.sin(t)]
+    mask = _draw(ours)
+    mask[235:246, 300:lost_to] = 0
+    mask |= _draw(other)
+    result = order_sequence(mask, ours[0])
+    assert result.points[-1, 0] > 555
+    assert np.abs(result.points[:, 1] - 240).max() < 2.5  # never on the other strand
+    assert result.bridges <= 1  # a gap within the junction's circle is crossed in its one step
+    bridged_u = result.points[result.bridged, 0]
+    assert np.all((bridged_u > 280) & (bridged_u < lost_to + 2))
+
+
 def test_a_thread_ending_where_another_strand_crosses_its_way_is_not_joined_to_it():
     truth = _curve()[:900]  # ends at its real free end
     end = truth[-1]

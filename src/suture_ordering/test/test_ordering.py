@@ -886,6 +886,21 @@ def test_a_crossing_strand_whose_far_arm_the_mask_lost_is_not_walked():
     check_stored_stereo_frame("predicted_crossing_strand_lost_beyond_the_crossing.npz")
 
 
+def test_a_thread_the_mask_lost_beside_the_strand_it_crosses_is_walked_on_beyond_it():
+    """Predicted masks (the on-site default, int8) of an on-site simulator frame (crossed,
+    640x480): 100 px from the cut tip the left view's mask lost our thread for 8 px just past
+    the strand it crosses at about 70 degrees. The junction's every arm turned sharply onto that
+    strand, and the step out of a loop took it (a 70 degree arc over 11 px), so the sequence
+    was cut at the crossing and the 3D stage refused a thread 22 mm long. The search now looks
+    beyond the strand and bridges the gap. (The mask also lost the cut tip's last 8 px: the
+    sequences are followed from the true sample nearest their start.)"""
+    ordering, stored = order_stored_frame("predicted_crossing_lower_strand_lost_beside_the_upper.npz")
+    for sequence, truth in ((ordering.left, stored["truth_left"]), (ordering.right, stored["truth_right"])):
+        truth = truth.astype(float)
+        start = int(np.argmin(np.hypot(*(truth - sequence[0, :2]).T)))
+        check_follows(sequence[:, :2], truth[start:], tolerance=3.0)
+
+
 def test_a_tip_arm_that_thinning_ate_back_is_walked_from_the_masks_end():
     """A simulator frame (hooked, 640x480, true masks): the tip arm is drawn 2 px wide on the
     diagonal and its skeleton stops 12 px short of the cut tip; the walk through the hook
