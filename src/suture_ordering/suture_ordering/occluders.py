@@ -23,9 +23,9 @@ where the search stopped at a junction because every arm there turns sharply ont
 (:data:`suture_ordering.junctions.STOP`): it never looked past that strand, and a segmenter often
 loses the lower strand for a few pixels beside the upper one, so there pieces farther than r_s
 are tried too. A strand crossing the way fails these checks, and so does one that starts
-beside the line of a thread ending straight; the search then ends as before: stopping is safer than a bridge onto another
-strand. The bridged stretch is a cubic Hermite curve along both tangents, flagged as not seen
-(:func:`suture_ordering.path.advance`).
+beside the line of a thread ending straight; the search then ends as before: stopping is safer
+than a bridge onto another strand. The bridged stretch is a cubic Hermite curve along both
+tangents, flagged as not seen (:func:`suture_ordering.path.advance`).
 """
 
 from __future__ import annotations
