@@ -32,7 +32,7 @@ from suture_ordering.nodes import MAX_OUTSIDE_ZONE, Candidates
 from suture_ordering.path import Branch, predicted_heading, tangent_at_vertex
 
 
-def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None:
+def across_own_path(context: SearchContext, branch: Branch, on_strand: bool = False) -> Candidates | None:
     """The step out of a loop across the thread's own earlier pass, where the search found
     nothing: the candidate, or None (the thread ends here).
 
@@ -43,7 +43,9 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
     that it is taken for a gap and refused. Here a free node ahead (turning less than
     ``bridge_turn_max``) is taken when the smooth step to it (a Hermite curve along both
     tangents, bending less than ``bridge_bend_max``) runs within the zone (at most 10 %
-    outside) and over the traversed path (crossing it), nearest first.
+    outside) and over the traversed path (crossing it), nearest first. ``on_strand``: the search
+    stopped at a junction that turns only sharply onto another strand; the step must then keep
+    our direction too (module docstring).
     """
     reader, params = context.reader, context.params
     heading = predicted_heading(branch)
@@ -64,7 +66,7 @@ def across_own_path(context: SearchContext, branch: Branch) -> Candidates | None
             onward = reader.tangent(point, point - vertex, consumed_flat)
             if onward is None or bend(vertex, unit, point, onward) >= params.bridge_bend_max:
                 continue
-            if branch.stopped_on_strand and turn_angles(onward[None, :], unit)[0] >= params.bridge_turn_max:
+            if on_strand and turn_angles(onward[None, :], unit)[0] >= params.bridge_turn_max:
                 continue  # onto the strand whose every arm the junction found turning sharply
             curve = reader.flat(hermite(vertex, point, unit * r, onward * r))
             outside = (reader.zone_flat[curve] == 0).mean()

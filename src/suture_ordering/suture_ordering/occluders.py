@@ -92,11 +92,12 @@ def _path_back(branch: Branch, length: float) -> tuple[np.ndarray, np.ndarray]:
     return path, np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
 
 
-def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None:
+def across_occluder(context: SearchContext, branch: Branch, on_strand: bool = False) -> Candidates | None:
     """The step across a wide gap beyond the end of the search (see the module docstring): the
     one candidate, or None (the thread ends here). With a candidate, ``branch``'s track is set
     to the fitted end tangent, along which the bridge's Hermite curve leaves (the last chords'
-    turn measures it less well)."""
+    turn measures it less well). ``on_strand``: the search stopped at a junction that turns only
+    sharply onto another strand, so pieces nearer than τ_O / 2 are tried too."""
     params, scaled = context.params, context.scaled
     reach = params.occluder_reach_px * scaled.scale
     if reach <= scaled.tau_o or not branch.segments:
@@ -151,7 +152,7 @@ def across_occluder(context: SearchContext, branch: Branch) -> Candidates | None
         point = (offset[near_entry] + end).mean(axis=0)
         chord = point - end
         length = float(np.hypot(*chord))
-        if length <= (scaled.step_radius if branch.stopped_on_strand else scaled.tau_o / 2):
+        if length <= (scaled.step_radius if on_strand else scaled.tau_o / 2):
             continue  # within the search's own reach: its own end, or a gap it refused
         continuation = gap_exit(across, point, chord, tangent, branch.consumed)
         if continuation is None or not _bends_as_predicted(tangent, curvature, chord, continuation, params):

@@ -35,10 +35,7 @@ from suture_ordering.geometry import LINE_SHIFT, fixed_point, hermite, rotate, s
 
 @dataclass
 class Branch:
-    """One fork of the search: the parameter sets (rows of the grid) that agreed so far.
-
-    ``stopped_on_strand``: the last step found only sharp turns onto another strand at a
-    junction (:data:`suture_ordering.junctions.STOP`)."""
+    """One fork of the search: the parameter sets (rows of the grid) that agreed so far."""
 
     rows: np.ndarray
     consumed: np.ndarray
@@ -53,7 +50,6 @@ class Branch:
     steps: int = 0
     bridges: int = 0
     status: str = ""
-    stopped_on_strand: bool = False
 
     def fork(self, rows: np.ndarray) -> Branch:
         return Branch(

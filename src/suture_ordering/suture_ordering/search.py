@@ -47,6 +47,7 @@ from suture_ordering.cleaning import CleanMask
 from suture_ordering.context import SearchContext
 from suture_ordering.ending import append_tail, end_status
 from suture_ordering.hooks import HookStart, follow
+from suture_ordering.junctions import STOP
 from suture_ordering.loops import across_own_path
 from suture_ordering.nodes import Candidates, MaskReader
 from suture_ordering.occluders import across_occluder
@@ -115,10 +116,11 @@ class Searcher:
                     branch.status = "max_steps"
                     break
                 found = next_candidates(context, branch)
+                on_strand = found is STOP
+                if found is None or on_strand:
+                    found = across_own_path(context, branch, on_strand)
                 if found is None:
-                    found = across_own_path(context, branch)
-                if found is None:
-                    found = across_occluder(context, branch)
+                    found = across_occluder(context, branch, on_strand)
                 if found is None:
                     append_tail(context, branch)
                     branch.status = end_status(context, branch.vertices[-1])

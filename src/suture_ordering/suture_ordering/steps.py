@@ -28,7 +28,7 @@ from suture_ordering.bridging import gap_exit
 from suture_ordering.compiled import admissible_nodes
 from suture_ordering.context import SearchContext
 from suture_ordering.geometry import turn_angles
-from suture_ordering.junctions import STOP, decided_across_junction, junction_step
+from suture_ordering.junctions import Stop, decided_across_junction, junction_step
 from suture_ordering.nodes import Candidates, Nodes
 from suture_ordering.path import Branch, predicted_heading, tangent_at_vertex, thread_width
 
@@ -117,8 +117,10 @@ def farther_radii(
     return [int(r) for r in radii if scaled.step_radius < r <= reach]
 
 
-def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None:
-    """Admissible nodes of the current RoI (widened across a gap if it has none), or None.
+def next_candidates(context: SearchContext, branch: Branch) -> Candidates | Stop | None:
+    """Admissible nodes of the current RoI (widened across a gap if it has none), or None;
+    :data:`~suture_ordering.junctions.STOP` where a junction ahead turns only sharply onto
+    another strand.
 
     Circles are read from r_s outward and only while a farther node could still cost less
     for some parameter set; beyond Υ only if the RoI held no admissible node.
@@ -129,7 +131,6 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
     consumed_flat = branch.consumed.reshape(-1)
     width = thread_width(branch)
     r_s = context.scaled.step_radius
-    branch.stopped_on_strand = False
     found: list[Candidates] = []
     best = None  # per parameter set, the least cost found so far
     nodes = reader.nodes(vertex, r_s, width)
@@ -137,9 +138,6 @@ def next_candidates(context: SearchContext, branch: Branch) -> Candidates | None
         first = admissible(context, branch, nodes, heading, consumed_flat)
         if first is not None and heading is not None and decided_across_junction(context, first, width):
             junction = junction_step(context, branch, heading, consumed_flat)
-            if junction is STOP:
-                branch.stopped_on_strand = True
-                return None
             if junction is not None:
                 return junction
         if first is not None:
