@@ -147,6 +147,16 @@ def test_player_sends_the_first_frame_again_until_the_graph_answers(
     assert (report["per_frame"][0]["latency_ms"] is not None) == (outputs == 10)
 
 
+def check_on_schedule(late_s: np.ndarray) -> None:
+    """Frames follow the recorded timing: none ahead of it, the typical one within 10 ms (a wrong
+    rate or a drift moves them all), and none more than 0.1 s late. A single frame 40 ms late
+    has been seen on a loaded 2-core machine, the next one back on time: the scheduler's, not the
+    player's; the player schedules every frame from the first one's time, so it does not drift."""
+    assert late_s.min() > -0.005, late_s
+    assert np.median(np.abs(late_s)) < 0.01, late_s
+    assert late_s.max() < 0.1, late_s
+
+
 def test_player_follows_recorded_timing(ros):
     context, executor, helper = ros
     received = echo_graph(helper)
@@ -162,10 +172,10 @@ def test_player_follows_recorded_timing(ros):
     assert [f["stamp_ns"] for f in report["per_frame"]] == SAMPLE_STAMPS
     due = np.arange(10) * PERIOD / 1e9 / rate
     published = np.array([f["published_s"] for f in report["per_frame"]])
-    assert np.abs(published - published[0] - due).max() < 0.025, published - published[0]
+    check_on_schedule(published - published[0] - due)
     arrival = np.array(received["arrival_s"])
     assert received[topics.LEFT_IMAGE] == SAMPLE_STAMPS
-    assert np.abs(arrival - arrival[0] - due).max() < 0.04, arrival - arrival[0]
+    check_on_schedule(arrival - arrival[0] - due)
     # the echo answered every frame, so outputs were measured although the player did not wait
     assert report["outputs"] == 10 and report["latency_ms"]["max"] < 1000
     assert best_effort and set(best_effort) <= set(SAMPLE_STAMPS)
