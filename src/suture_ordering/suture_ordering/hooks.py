@@ -678,24 +678,33 @@ def _merged_passes(graph: _Graph, walk: list[tuple[int, bool]], reach: float) ->
     return found
 
 
-def _split_merged_arms(
-    graph: _Graph, walk: list[tuple[int, bool]], reach: float, thread: cKDTree, depth: np.ndarray
-) -> tuple[np.ndarray, list[int]]:
-    """``walk``'s pixels (N, 2) float64, those of merged arms moved from the stroke's centre
-    onto the arms: the way back to the side the thread leaves by (:func:`_stroke_side`), the
-    way down to the other, each by the stroke's half width ``depth`` (the distance to the
-    background at the pixel) less the leaving thread's, which is half the arms' spacing; and the
-    indices into them where the walk turns back at a free end (a hairpin's bend) at the end of a
-    branch at least ``SMOOTHING`` px long (a shorter one is a spur of the thinning or the stub
-    of an arm the mask lost, which the smoothing averages away)."""
-    pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
-    passes = _merged_passes(graph, walk, reach)
-    ends = np.cumsum([len(piece) for piece in pieces]) - 1
-    turns = [
+def _hairpin_turns(graph: _Graph, walk: list[tuple[int, bool]], passes: list[tuple[int, int]]) -> list[int]:
+    """Indices into ``walk``'s pixels where it turns back at a free end (a hairpin's bend; of the
+    ``passes`` of :func:`_merged_passes`) at the end of a branch at least ``SMOOTHING`` px long
+    (a shorter one is a spur of the thinning or the stub of an arm the mask lost, which the
+    smoothing averages away)."""
+    ends = np.cumsum([len(piece) for piece in _pieces(graph, walk)]) - 1
+    return [
         int(ends[first])
         for first, back in passes
         if back == first + 1 and graph.branches[walk[first][0]].length >= SMOOTHING
     ]
+
+
+def _split_merged_arms(
+    graph: _Graph,
+    walk: list[tuple[int, bool]],
+    passes: list[tuple[int, int]],
+    reach: float,
+    thread: cKDTree,
+    depth: np.ndarray,
+) -> np.ndarray:
+    """``walk``'s pixels (N, 2) float64, those of merged arms (its ``passes`` down and back, from
+    :func:`_merged_passes`) moved from the stroke's centre onto the arms: the way back to the
+    side the thread leaves by (:func:`_stroke_side`), the way down to the other, each by the
+    stroke's half width ``depth`` (the distance to the background at the pixel) less the leaving
+    thread's, which is half the arms' spacing."""
+    pieces = [piece.astype(np.float64) for piece in _pieces(graph, walk)]
     for first, back in passes:
         found = _stroke_side(graph, walk[first], walk[back + 1 :], reach, thread)
         if found is None or abs(found[0]) < SPLIT_SIDE:
@@ -717,7 +726,7 @@ def _split_merged_arms(
             ints = np.rint(pixels).astype(int)
             shift = np.clip(depth[ints[:, 1], ints[:, 0]] - half, 0.0, 2 * half)
             pieces[position] = pixels + (sign * math.copysign(1.0, side) * shift)[:, None] * normals
-    return np.vstack(pieces), turns
+    return np.vstack(pieces)
 
 
 def _resampled(points: np.ndarray, spacing: float = 1.0) -> np.ndarray:
@@ -872,7 +881,9 @@ def hook_walk(
             scores = [score for score, _ in scored]
             both = _both_views(smoothed, scores, against, other, scale, (best, guided))
         best, other_choice = (guided, None) if both is None else both
-    path, turns = _split_merged_arms(graph, walks[best], step, thread, depth)
+    passes = _merged_passes(graph, walks[best], step)
+    path = _split_merged_arms(graph, walks[best], passes, step, thread, depth)
+    turns = _hairpin_turns(graph, walks[best], passes)
     if tip_branches > 1:  # the tip inside a stroke: its arm may run on past the skeleton's pixel
         tail = np.rint(path[-max(2, len(path) // 3) :]).astype(int)
         half = max(0.0, float(np.median(depth[tail[:, 1], tail[:, 0]])) - 0.5)

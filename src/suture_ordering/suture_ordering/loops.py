@@ -32,7 +32,7 @@ from suture_ordering.nodes import MAX_OUTSIDE_ZONE, Candidates
 from suture_ordering.path import Branch, predicted_heading, tangent_at_vertex
 
 
-def across_own_path(context: SearchContext, branch: Branch, on_strand: bool = False) -> Candidates | None:
+def across_own_path(context: SearchContext, branch: Branch, on_strand: bool) -> Candidates | None:
     """The step out of a loop across the thread's own earlier pass, where the search found
     nothing: the candidate, or None (the thread ends here).
 

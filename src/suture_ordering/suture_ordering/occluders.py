@@ -92,7 +92,7 @@ def _path_back(branch: Branch, length: float) -> tuple[np.ndarray, np.ndarray]:
     return path, np.cumsum(np.hypot(*np.diff(path[::-1], axis=0).T))
 
 
-def across_occluder(context: SearchContext, branch: Branch, on_strand: bool = False) -> Candidates | None:
+def across_occluder(context: SearchContext, branch: Branch, on_strand: bool) -> Candidates | None:
     """The step across a wide gap beyond the end of the search (see the module docstring): the
     one candidate, or None (the thread ends here). With a candidate, ``branch``'s track is set
     to the fitted end tangent, along which the bridge's Hermite curve leaves (the last chords'
