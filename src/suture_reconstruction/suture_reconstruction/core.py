@@ -264,7 +264,8 @@ class ReconstructionParams:
             "the cut tip or the far end away from the reconstruction (2 px: about 8 mm of depth at "
             "100 mm with fx 520 px and a 5 mm baseline); farther, the masks' ends or rows disagree "
             "between the views and the carried depth is wrong (EndDisparityError; only checked with "
-            "images)",
+            "images); an end the images place 1 px to this far away, where the thread stands out "
+            "from the tissue, takes its disparity from them",
             (0.0, 1000.0),
         ),
     )
@@ -500,7 +501,9 @@ def reconstruct(
             pairs,
             params.disparity,
             params.photometric,
-            end_matcher=lambda fused, prepared: match_unanchored_ends(prepared, left, fused, camera, images),
+            end_matcher=lambda fused, prepared: match_unanchored_ends(
+                prepared, left, fused, camera, images, params.max_end_disparity_gap_px
+            ),
         )
     timer.lap("photometric")
     triangulated = triangulate_supported(camera, left, disparity, d_range, params.min_pairs)

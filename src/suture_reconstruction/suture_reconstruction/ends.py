@@ -48,6 +48,16 @@ thread's end, the end is not matched, as an end at the image border is not. The 
 thread with no steep stretch (:func:`end_disparity_gaps_px`) still reads such an end: the gap it
 finds there is the instrument's, and a refusal is the safe side.
 
+A thread with no steep stretch at all has its depth from its two ends' pairs, and a mask a pixel
+wider on one side or cut short in one view moves them, and the whole thread's depth with them,
+while the views still agree. :func:`match_unanchored_ends` matches its ends too, and the
+refinement fuses an end's matches where the images put it :data:`UNANCHORED_MIN_GAP_PX` to
+``max_end_disparity_gap_px`` from the pairs (nearer, the two agree within the match's own noise and
+the pairs are kept; farther, the check above refuses the thread) and where the thread stands out
+from the tissue round the end (:func:`end_contrast` at least :data:`MIN_END_CONTRAST`): a thread
+of the tissue's colour leaves the window only the tissue's texture to match, which a shift along
+the rows matches about as well.
+
 Units: metres for 3D points, pixels in the images, degrees for angles.
 """
 
@@ -55,6 +65,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import minimum_filter1d
+from scipy.spatial import cKDTree
 
 from suture_common.camera import StereoCamera
 from suture_reconstruction.curve import ArcLengthCurve
@@ -96,6 +107,17 @@ MIN_STRUCTURE = 8.0
 BEYOND_GAP_PX = 2.0
 #: Samples (1 px apart) before an end that give the way the thread leaves it.
 END_DIRECTION_SAMPLES = 12
+#: On a thread with no steep stretch, an end's match is fused only where it lies at least this far
+#: (px of disparity) from the masks' pairs: nearer, both agree within the match's own noise.
+UNANCHORED_MIN_GAP_PX = 1.0
+#: ... and only where the thread differs from the tissue beside it by at least this many times the
+#: tissue's own variation there (:func:`end_contrast`): the thread, not the texture, is then what
+#: the window matches.
+MIN_END_CONTRAST = 1.0
+#: Pixels within this distance (px) of the sequence are the thread's in :func:`end_contrast`, ...
+END_CORE_PX = 1.0
+#: ... and those from END_CORE_PX + 2 px out to this distance the tissue's beside it.
+END_TISSUE_PX = 7.0
 #: The matching of an end's window: it holds the termination, searched about the given disparity.
 END_WINDOW = PhotometricParams(
     search_px=END_SEARCH_PX, radius_px=END_RADIUS_PX, half_width_px=END_HALF_WIDTH_PX
@@ -153,6 +175,7 @@ def match_unanchored_ends(
     disparity: Disparity,
     camera: StereoCamera,
     images: tuple[np.ndarray, np.ndarray],
+    max_gap_px: float,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The images' disparity at each end of a thread whose depth there rests on the end's pair.
 
@@ -162,14 +185,16 @@ def match_unanchored_ends(
     the fused disparity along it; ``images``: the rectified views, unblurred. An end qualifies
     when the thread crosses the image rows at :data:`ANCHOR_ROW_DEG` or more over
     :data:`ANCHOR_ARC_M` somewhere, but not within :data:`END_LEVER_M` of arc from that end (arc
-    read in pixels at the thread's median disparity), it lies away from the image border, and it
-    does not run under something nearer the camera (:func:`at_occluder`). Its
-    :data:`END_SAMPLES` outermost supported samples are matched along the rows with the window
+    read in pixels at the thread's median disparity), or nowhere at all; it lies away from the
+    image border, and it does not run under something nearer the camera (:func:`at_occluder`).
+    Its :data:`END_SAMPLES` outermost supported samples are matched along the rows with the window
     that holds the termination (:func:`end_disparity_gaps_px`' window), within
-    :data:`END_SEARCH_PX` of ``disparity``.
+    :data:`END_SEARCH_PX` of ``disparity``. On a thread with no steep stretch an end's matches
+    count only where their median lies :data:`UNANCHORED_MIN_GAP_PX` to ``max_gap_px``
+    (``ReconstructionParams.max_end_disparity_gap_px``) from ``disparity`` and the thread stands
+    out there (:func:`end_contrast` at least :data:`MIN_END_CONTRAST`).
     Returns (rows (E,) int, disparities (E,) px) of the matched samples, or None where no end
-    qualifies or none matched :data:`MIN_END_MATCHES` samples. A thread with no steep stretch
-    at all is left to :func:`refuse_contradicted_ends`.
+    qualifies or none matched :data:`MIN_END_MATCHES` samples.
     """
     points = left.points[:, :2]
     supported = np.flatnonzero(left.observed & disparity.supported)
@@ -177,13 +202,12 @@ def match_unanchored_ends(
         return None
     held, px_per_m = _sequence_steepness(left, disparity, camera)
     anchored = np.flatnonzero((held >= np.sin(np.radians(ANCHOR_ROW_DEG))) & left.observed)
-    if anchored.size == 0:
-        return None
+    nowhere_steep = anchored.size == 0
     lever = END_LEVER_M * px_per_m
     unanchored = []
-    if anchored[0] - supported[0] >= lever:
+    if nowhere_steep or anchored[0] - supported[0] >= lever:
         unanchored.append((supported[:END_SAMPLES], supported[0], 1))
-    if supported[-1] - anchored[-1] >= lever:
+    if nowhere_steep or supported[-1] - anchored[-1] >= lever:
         unanchored.append((supported[-END_SAMPLES:], supported[-1], -1))
     windows = [
         index
@@ -191,20 +215,58 @@ def match_unanchored_ends(
         if not _at_border(points[outermost], camera)
         and not at_occluder(images, points, outermost, inward, float(disparity.value[outermost]))
     ]
-    if not windows:
-        return None
     tangents = np.gradient(points, axis=0)
     rows, values = [], []
     for index in windows:
         matches = match_along_rows(
             *prepared, points[index], tangents[index], disparity.value[index], END_WINDOW
         )
-        if matches.matched.sum() >= MIN_END_MATCHES:
-            rows.append(index[matches.matched])
-            values.append(matches.disparity[matches.matched])
+        if matches.matched.sum() < MIN_END_MATCHES:
+            continue
+        found = matches.disparity[matches.matched]
+        if nowhere_steep:
+            gap = abs(float(np.median(found - disparity.value[index][matches.matched])))
+            if not UNANCHORED_MIN_GAP_PX <= gap <= max_gap_px:
+                continue
+            if end_contrast(images[0], points[left.observed], points[index]) < MIN_END_CONTRAST:
+                continue
+        rows.append(index[matches.matched])
+        values.append(found)
     if not rows:
         return None
     return np.concatenate(rows), np.concatenate(values)
+
+
+def end_contrast(image: np.ndarray, sequence: np.ndarray, end: np.ndarray) -> float:
+    """How far the thread stands out from the tissue beside it round an end, in units of the
+    tissue's own variation.
+
+    ``image``: the left view (H, W) or (H, W, C), grey levels; ``sequence`` (K, 2) px: the seen
+    samples of the left sequence; ``end`` (E, 2) px: the end's outermost samples. Within
+    :data:`END_RADIUS_PX` of the end's centre, the pixels within :data:`END_CORE_PX` of the
+    sequence are the thread's, those from ``END_CORE_PX + 2`` to :data:`END_TISSUE_PX` the
+    tissue's (beside the thread and past its end). Returns the difference of their median grey
+    levels (the mean over channels) over the tissue's robust standard deviation (1.4826 median
+    absolute deviation) plus one grey level; 0.0 where either holds fewer than
+    :data:`MIN_END_MATCHES` pixels.
+    """
+    grey = image.mean(axis=2) if image.ndim == 3 else image.astype(np.float64)
+    centre = np.rint(end.mean(axis=0)).astype(np.int64)
+    low = np.maximum(centre - END_RADIUS_PX, 0)
+    high = np.minimum(centre + END_RADIUS_PX + 1, [grey.shape[1], grey.shape[0]])
+    rows, cols = np.mgrid[low[1] : high[1], low[0] : high[0]]
+    near = sequence[np.linalg.norm(sequence - centre, axis=1) <= END_RADIUS_PX + END_TISSUE_PX]
+    if near.size == 0:
+        return 0.0
+    pixels = np.column_stack([cols.ravel(), rows.ravel()])
+    distance = cKDTree(near).query(pixels)[0]
+    levels = grey[rows.ravel(), cols.ravel()]
+    thread = levels[distance <= END_CORE_PX]
+    tissue = levels[(distance >= END_CORE_PX + 2.0) & (distance <= END_TISSUE_PX)]
+    if thread.size < MIN_END_MATCHES or tissue.size < MIN_END_MATCHES:
+        return 0.0
+    spread = 1.4826 * float(np.median(np.abs(tissue - np.median(tissue))))
+    return abs(float(np.median(thread) - np.median(tissue))) / (spread + 1.0)
 
 
 def end_disparity_gaps_px(

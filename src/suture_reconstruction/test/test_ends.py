@@ -19,9 +19,12 @@ from suture_reconstruction import (
 )
 from suture_reconstruction.curve import fit_curve
 from suture_reconstruction.ends import (
+    END_SAMPLES,
     END_WINDOW,
+    MIN_END_CONTRAST,
     anchor_row_angle_deg,
     at_occluder,
+    end_contrast,
     match_unanchored_ends,
     refuse_contradicted_ends,
     sequence_anchor_deg,
@@ -166,13 +169,11 @@ def test_a_thread_along_the_rows_whose_views_sit_a_third_of_a_row_apart_is_refus
     assert np.linalg.norm(published.grasp_position - true_grasp) < 0.002
 
     higher = right - np.array([0.0, 0.3])
-    unchecked_ends = ReconstructionParams(max_end_disparity_gap_px=100.0)
-    unchecked = reconstruct(left, higher, camera, unchecked_ends, images=images)
+    unchecked = reconstruct(left, higher, camera)  # without images there is no witness
     assert np.linalg.norm(unchecked.grasp_position - true_grasp) > 0.005
     assert unchecked.grasp_uncertainty_mm < 5.0  # the views agree: no other check sees it
     with pytest.raises(EndDisparityError, match=r"cut tip -2\.\d px of disparity"):
         reconstruct(left, higher, camera, images=images)
-    reconstruct(left, higher, camera)  # without images there is no witness
     with pytest.raises(ValueError, match="max_end_disparity_gap_px"):
         ReconstructionParams(max_end_disparity_gap_px=0.0)
 
@@ -182,8 +183,8 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
     pair: a predicted mask cut 3 px short at the tip in one view is 3 px of disparity (about 10
     mm of depth), and along the rows the thread's own windows match themselves at any shift. The
     window round the tip, which holds its termination, finds the true disparity in the images
-    and the fused disparity follows it; a thread steep at both ends, or nowhere, is not matched
-    here."""
+    and the fused disparity follows it; a thread steep at both ends is not matched, nor one steep
+    nowhere whose pairs the images confirm."""
     camera = StereoCamera.default(640, 480)
     curve = along_rows_then_steep(flat_deg=0.0)
     left, _ = exact_views(camera, curve)
@@ -197,7 +198,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         len(tip_off), np.arange(len(tip_off)), tip_off, np.ones(len(tip_off)), DisparitySmoothing()
     )
 
-    matched = match_unanchored_ends(prepare_images(*images), resampled, wrong, camera, images)
+    matched = match_unanchored_ends(prepare_images(*images), resampled, wrong, camera, images, 2.0)
     assert matched is not None
     rows, values = matched
     assert rows.tolist() == list(range(5))  # the tip's 5 outermost samples; the far end is steep
@@ -212,7 +213,7 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
         )
         thread_images = with_thread(textured_pair(camera, 20), camera, anchored_or_not)
         prepared = prepare_images(*thread_images)
-        assert match_unanchored_ends(prepared, samples, fit, camera, thread_images) is None
+        assert match_unanchored_ends(prepared, samples, fit, camera, thread_images, 2.0) is None
 
     steep = np.arange(steep_from, len(tip_off))
     pairs = Pairs(  # the tip's pair 3 px off (the cut mask), every steep sample's pair right
@@ -239,6 +240,66 @@ def test_an_end_far_from_any_steep_stretch_takes_its_disparity_from_the_images(e
     assert not abs(fused.value[0] - true_disparity) < 1.0  # without them: unsupported (NaN) or off
 
 
+def test_a_thread_nowhere_steep_takes_an_end_from_the_images_where_it_stands_out_and_its_pairs_sit_off(
+    exact_views, textured_pair
+):
+    """A straight thread at 1.5 degrees to the rows, its depth resting on its ends' pairs. The right
+    view's sequence 1.5 px to the left of the thread (its mask cut short at both ends, or wider on
+    one side) moves every pair's disparity by 1.5 px, about 5 mm of depth: inside the 2 px that the
+    end check lets pass, and the grasp point moves with it. The images, matched round each end,
+    put the ends where they are and the fused depth follows them. Ends whose pairs the images
+    confirm within 1 px (the match's own noise) keep the pairs, ends farther off than
+    ``max_end_disparity_gap_px`` are left to the end check, and a thread barely darker than the
+    tissue (2 grey levels on tissue varying by 5), which leaves the window mostly the tissue's
+    noise to match, keeps its pairs."""
+    camera = StereoCamera.default(640, 480)
+    curve = straight_thread(1.5)
+    left, right = exact_views(camera, curve)
+    images = with_thread(textured_pair(camera, round(float(camera.disparity(DEPTH + 0.002)))), camera, curve)
+    true_grasp = curve[round(GRASP_ARC / 5e-5)]
+    shifted = right - np.array([1.5, 0.0])
+
+    without_images = reconstruct(left, shifted, camera)
+    assert np.linalg.norm(without_images.grasp_position - true_grasp) > 0.004
+    with_images = reconstruct(left, shifted, camera, images=images)
+    assert np.linalg.norm(with_images.grasp_position - true_grasp) < 0.002
+
+    samples = resample(left, 1.0, 10.0)
+    tip = samples.points[:END_SAMPLES]
+    assert end_contrast(images[0], samples.points, tip) >= MIN_END_CONTRAST
+    noise = np.random.default_rng(1).normal(0.0, 5.0, (camera.height, camera.width + 40))
+    plain = np.clip(128.0 + noise, 0, 255)
+    shift = round(float(camera.disparity(DEPTH + 0.002)))
+    plain_pair = (
+        np.dstack([plain[:, : camera.width]] * 3),
+        np.dstack([plain[:, shift : shift + camera.width]] * 3),
+    )
+    faint = []
+    for image, view in zip(plain_pair, ("left", "right"), strict=True):
+        drawn = np.zeros(image.shape[:2], np.uint8)
+        cv2.polylines(drawn, [np.rint(camera.project(curve, view)).astype(np.int32)], False, 1, 2)
+        faint.append((image - 2.0 * drawn[..., None]).astype(np.uint8))
+    faint = (faint[0], faint[1])
+    assert end_contrast(faint[0], samples.points, tip) < MIN_END_CONTRAST
+    true_disparity = float(camera.disparity(DEPTH))
+
+    def matched_at(offset_px: float, views: tuple[np.ndarray, np.ndarray]):
+        flat = np.full(len(samples.arc), true_disparity + offset_px)
+        fit = regularise_disparity(
+            len(flat), np.arange(len(flat)), flat, np.ones(len(flat)), DisparitySmoothing()
+        )
+        return match_unanchored_ends(prepare_images(*views), samples, fit, camera, views, 2.0)
+
+    rows, values = matched_at(1.5, images)
+    assert set(rows.tolist()) == set(range(END_SAMPLES)) | set(
+        range(len(samples.arc) - END_SAMPLES, len(samples.arc))
+    )
+    assert np.abs(values - true_disparity).max() < 0.5  # the tissue 2 mm behind pulls the window a little
+    assert matched_at(0.5, images) is None  # the pairs confirmed
+    assert matched_at(3.0, images) is None  # the end check's to refuse
+    assert matched_at(1.5, faint) is None  # hardly any thread to match
+
+
 def test_an_end_under_an_instrument_is_not_matched_in_the_images(exact_views, textured_pair):
     """The thread of the test above with its first 10 mm under an instrument shaft lying across
     it, 15 mm nearer the camera: the left sequence starts at the shaft's edge. The window round
@@ -263,9 +324,9 @@ def test_an_end_under_an_instrument_is_not_matched_in_the_images(exact_views, te
     assert np.median(edge_match.disparity[edge_match.matched]) > true_disparity + 1.5
 
     assert at_occluder(images, samples.points, 0, 1, true_disparity)
-    assert match_unanchored_ends(prepared, samples, fit, camera, images) is None
+    assert match_unanchored_ends(prepared, samples, fit, camera, images, 2.0) is None
     assert not at_occluder(tissue, samples.points, 0, 1, true_disparity)
-    assert match_unanchored_ends(prepare_images(*tissue), samples, fit, camera, tissue) is not None
+    assert match_unanchored_ends(prepare_images(*tissue), samples, fit, camera, tissue, 2.0) is not None
 
 
 def test_a_thread_under_an_instrument_short_of_the_grasp_point_is_refused_as_not_seen(
