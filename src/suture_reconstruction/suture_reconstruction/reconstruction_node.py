@@ -16,8 +16,9 @@ them, and gives the pair with the sequences' stamp to :func:`reconstruct`,
 which refines the disparity photometrically
 (:mod:`suture_reconstruction.photometric`; the depth of a 5 mm-baseline
 endoscope needs the tenth of a pixel that the masks cannot give), and at an end
-far along the rows from any steep stretch by a window round its termination
-(:mod:`suture_reconstruction.ends`). The images
+far along the rows from any steep stretch by a window round its termination,
+as it does an end of a thread steep nowhere that stands out from the tissue
+where the masks' pairs put it 1-2 px off (:mod:`suture_reconstruction.ends`). The images
 of a frame are published before its sequences can exist, so they are normally
 waiting; if they are not (lost on a best-effort link, or malformed), the frame
 is reconstructed from the sequences alone, with a throttled warning. Publishes, with the stamp of the
