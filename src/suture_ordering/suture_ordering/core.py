@@ -378,7 +378,7 @@ def _cut_at_skipped_loops(
     }
     changes, cut = {}, list(ordering.cut)
     for index, (mask, (view, (visible, published))) in enumerate(zip(masks, views.items(), strict=True)):
-        at = skipped_loop_index(mask, published[:, :2], scale)
+        at = skipped_loop_index(mask, published[:, :2], scale, published[:, 2] > 0)
         if at is None:
             continue
         removed = {tuple(point) for point in published[at + 1 :, :2].tolist()}

@@ -25,6 +25,15 @@ counts as joined where its two ends come within :data:`DETACHED_GAP_WIDTHS` thre
 corridor, when nothing else of it does (another thread running beside the sequence comes near it
 all along, not at two ends), and is then a ring or a detour as above.
 
+Where the segmenter lost the thread round the loop as well (a pale loop on a highlight), the
+ordering bridges the gap straight across and what is left of the loop lies beside the bridge, too
+far from the corridor to count as joined. A piece apart from the corridor counts, whatever its
+shape, where it is as long as a ring must be (:data:`RING_MIN_LENGTH_PX`; an instrument's edge
+that the segmenter took for thread leaves shorter slivers), every pixel of it lies nearest to one
+stretch the sequence bridged (its not-seen samples) and no farther from it than half that
+stretch's length: thread the bridge went past.
+The sequence is then cut where that bridge starts.
+
 A piece's length is its area over the thread's width. :func:`skipped_loop_index` gives the
 sequence's index where the first such piece joins it; ``order_stereo`` cuts the view's sequence
 there (``StereoOrdering.cut``), so that the 3D stage refuses a grasp beyond it as on a thread too
@@ -63,13 +72,17 @@ RING_LENGTH_RATIO = 2.2
 DETACHED_GAP_WIDTHS = 2.5
 
 
-def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.0) -> int | None:
+def skipped_loop_index(
+    mask: np.ndarray, sequence: np.ndarray, scale: float = 1.0, not_seen: np.ndarray | None = None
+) -> int | None:
     """Index into ``sequence`` where it first passes by a loop or detour of ``mask``, or None.
 
     ``mask``: (H, W) the mask the sequence was ordered on, nonzero = thread; ``sequence``:
-    (N, 2) float (u, v) from the cut tip, about 1 px apart; ``scale``: image width / 640.
+    (N, 2) float (u, v) from the cut tip, about 1 px apart; ``scale``: image width / 640;
+    ``not_seen``: (N,) bool, the samples the ordering bridged (None: all seen).
     """
     points = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
+    bridged = np.zeros(len(points), dtype=bool) if not_seen is None else np.asarray(not_seen, dtype=bool)
     thread = (np.asarray(mask) > 0).astype(np.uint8)
     if len(points) < 10:
         return None
@@ -97,6 +110,11 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
         piece = labels[box] == label
         rows, cols = np.nonzero(piece & touching[box])
         detached = rows.size == 0
+        if detached and bridged.any() and area / width >= RING_MIN_LENGTH_PX * scale:
+            at = _beside_bridge(piece, left, top, tree, bridged)
+            if at is not None:
+                first = at if first is None else min(first, at)
+                continue
         if detached:
             if near is None:
                 near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
@@ -125,6 +143,25 @@ def skipped_loop_index(mask: np.ndarray, sequence: np.ndarray, scale: float = 1.
         index = int(clusters[0][0])
         first = index if first is None else min(first, index)
     return first
+
+
+def _beside_bridge(piece: np.ndarray, left: int, top: int, tree: cKDTree, bridged: np.ndarray) -> int | None:
+    """Where a piece of mask apart from the corridor lies beside a stretch the sequence bridged:
+    the first index of that bridged run when every pixel of ``piece`` (a bool box at column
+    ``left``, row ``top``) is nearest to a bridged sample of the sequence (``tree`` over its
+    points; ``bridged`` (N,) bool), and no farther from it than half the run's length; else None."""
+    rows, cols = np.nonzero(piece)
+    distance, nearest = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
+    if not bridged[nearest].all():
+        return None
+    starts = np.flatnonzero(bridged & ~np.r_[False, bridged[:-1]])
+    ends = np.flatnonzero(bridged & ~np.r_[bridged[1:], False])
+    run = int(np.searchsorted(starts, nearest.min(), side="right")) - 1
+    if run < 0 or nearest.max() > ends[run]:
+        return None
+    if distance.max() > 0.5 * (ends[run] - starts[run] + 1):
+        return None
+    return int(starts[run])
 
 
 def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: float) -> np.ndarray:

@@ -109,3 +109,44 @@ def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by(stored_frame: str, l
     assert distance.min() < 3 and true_arc[np.argmin(distance)] < loop_at_px  # on our thread, before the loop
     assert np.hypot(*(off.left[-1] - truth[-1])).min() < 5  # without the cut: on past it to the end
     assert len(off.left) - len(cut.left) == cut.cut[0]
+
+
+def test_a_loop_beside_a_stretch_the_sequence_bridged_is_found_at_the_bridge() -> None:
+    """The mask lost the thread for 120 px (u = 260 to 380) and most of the loop it makes there, a
+    pale loop on a highlight: what is left of the loop, two arcs 11 px and more from the row, lies
+    beside the stretch the ordering bridged. The bridge skipped the loop's arc, so the sequence is
+    cut where the bridge starts. The same arcs beside a stretch the mask showed (not bridged) are
+    left to the ring and detour shapes, which they are not; and a strand of another thread that
+    stops short of the gap, reaching far from it, is not a loop."""
+    bridged = (STRAIGHT[:, 0] >= 260) & (STRAIGHT[:, 0] <= 380)
+    seen_part = [STRAIGHT[STRAIGHT[:, 0] < 260], STRAIGHT[STRAIGHT[:, 0] > 380]]
+    arcs = [_ring((320, 275), 24, 10, 120), _ring((320, 275), 24, 170, 100)]
+    mask = _draw(*seen_part, *arcs)
+    index = skipped_loop_index(mask, STRAIGHT, not_seen=bridged)
+    assert index is not None and STRAIGHT[index, 0] == 260
+    assert skipped_loop_index(mask, STRAIGHT) is None
+    strand = [(320, 60), (320, 226)]
+    assert skipped_loop_index(_draw(*seen_part, strand), STRAIGHT, not_seen=bridged) is None
+
+
+def test_a_stored_frame_whose_bridge_went_past_a_pale_loop_is_cut_where_the_bridge_starts() -> None:
+    """A simulator frame (self_intersected, 640x480, predicted masks of ``m_ost_int8`` and their
+    low masks): a pale loop on a highlight, which the segmenter lost with the thread either side of
+    its crossing. In the right view the ordering bridged 150 px straight past what is left of the
+    loop, and the grasp point, 50 mm of arc from the cut tip, landed 24 mm off (the loop's arc was
+    missing). The right sequence is now cut where that bridge starts, before the loop: what is
+    kept lies on the thread, and the 3D stage refuses the thread as too short."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_pale_loop_skipped_by_a_bridge.npz")
+    height, width = (int(n) for n in stored["shape"])
+    views = [
+        np.unpackbits(stored[name])[: height * width].reshape(height, width)
+        for name in ("left", "right", "low_left", "low_right")
+    ]
+    camera = StereoCamera.default(width, height)
+    ordering = order_stereo(views[0], views[1], stored["hint"], camera, low_masks=(views[2], views[3]))
+    assert ordering.cut[1] > 100
+    truth = stored["truth_right"].astype(float)
+    distance = np.hypot(*(ordering.right[:, None, :2] - truth[None]).transpose(2, 0, 1)).min(axis=1)
+    assert distance.max() < 3.0
+    nearest_end = int(np.argmin(np.hypot(*(truth - ordering.right[-1, :2]).T)))
+    assert nearest_end < 0.2 * len(truth)  # the loop lies farther on
