@@ -31,8 +31,7 @@ far from the corridor to count as joined. A piece apart from the corridor counts
 shape, where it is as long as a ring must be (:data:`RING_MIN_LENGTH_PX`; an instrument's edge
 that the segmenter took for thread leaves shorter slivers), every pixel of it lies nearest to one
 stretch the sequence bridged (its not-seen samples) and no farther from it than half that
-stretch's length: thread the bridge went past.
-The sequence is then cut where that bridge starts.
+stretch's length: thread the bridge went past. The sequence is then cut where that bridge starts.
 
 A piece's length is its area over the thread's width. :func:`skipped_loop_index` gives the
 sequence's index where the first such piece joins it; ``order_stereo`` cuts the view's sequence
