@@ -270,7 +270,7 @@ def perturb_sequence(
 # --------------------------------------------------------------------------- benchmark over bags
 
 TARGETS_MM = {"mean": 0.5, "worst_frame": 1.5, "grasp_median": 1.0, "grasp_max": 2.5}
-"""Issue 5's targets with ground-truth sequences: centreline mean and worst frame, grasp median and max."""
+"""The 3D stage's targets from true sequences: centreline mean and worst frame, grasp median and max."""
 
 TIME_TARGET_MS = 15.0
 

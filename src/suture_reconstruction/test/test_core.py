@@ -78,7 +78,7 @@ def test_a_thread_along_the_image_rows_is_fixed_by_its_ends(make_scene):
 
 @pytest.mark.parametrize("kind", ["lifted", "lifted_steep"])
 def test_a_lift_over_a_crossing_keeps_its_arc_length(make_scene, kind):
-    """Issue 5's failure mode: exact sequences of a thread lifted 6 mm where it passes over the
+    """A lifted crossing: exact sequences of a thread lifted 6 mm where it passes over the
     other strand. The lift is a 2-4 px disparity bump (1 px is 3 mm of depth there); the
     regulariser used to reject its exact pairs as outliers, smooth it over 30-50 px and step
     between scales, which flattened the lift: 4.5 mm of arc length lost before the grasp point
