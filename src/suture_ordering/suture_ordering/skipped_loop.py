@@ -48,6 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from suture_ordering.geometry import LINE_SHIFT
+from suture_ordering.not_seen import flagged_runs
 
 #: Mask pixels farther than the thread's half width plus this (px) from the sequence are off it.
 CORRIDOR_MARGIN_PX = 1.5
@@ -81,7 +82,6 @@ def skipped_loop_index(
     ``not_seen``: (N,) bool, the samples the ordering bridged (None: all seen).
     """
     points = np.asarray(sequence, dtype=np.float64).reshape(-1, 2)
-    bridged = np.zeros(len(points), dtype=bool) if not_seen is None else np.asarray(not_seen, dtype=bool)
     thread = (np.asarray(mask) > 0).astype(np.uint8)
     if len(points) < 10:
         return None
@@ -100,6 +100,10 @@ def skipped_loop_index(
         return None
     touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
     near: np.ndarray | None = None  # within DETACHED_GAP_WIDTHS of the corridor, once a piece needs it
+    bridges = [] if not_seen is None else flagged_runs(not_seen)
+    bridge_of = np.full(len(points), -1)  # each sample's bridged run, -1 where seen
+    for number, (start, stop) in enumerate(bridges):
+        bridge_of[start:stop] = number
     tree = cKDTree(points)
     height, image_width = thread.shape
     first: int | None = None
@@ -109,8 +113,9 @@ def skipped_loop_index(
         piece = labels[box] == label
         rows, cols = np.nonzero(piece & touching[box])
         detached = rows.size == 0
-        if detached and bridged.any() and area / width >= RING_MIN_LENGTH_PX * scale:
-            at = _beside_bridge(piece, left, top, tree, bridged)
+        length = area / width
+        if detached and bridges and length >= RING_MIN_LENGTH_PX * scale:
+            at = _beside_bridge(piece, left, top, tree, bridges, bridge_of)
             if at is not None:
                 first = at if first is None else min(first, at)
                 continue
@@ -123,7 +128,6 @@ def skipped_loop_index(
             rows, cols = np.nonzero(ends)
         _, joined = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
         joined = np.sort(joined)
-        length = area / width
         # points about 1 px apart: index differences are px of sequence (a jump counts as one)
         clusters = np.split(joined, np.flatnonzero(np.diff(joined) > JOIN_GAP_WIDTHS * width + 4 * scale) + 1)
         if len(clusters) >= 2:
@@ -144,23 +148,28 @@ def skipped_loop_index(
     return first
 
 
-def _beside_bridge(piece: np.ndarray, left: int, top: int, tree: cKDTree, bridged: np.ndarray) -> int | None:
+def _beside_bridge(
+    piece: np.ndarray,
+    left: int,
+    top: int,
+    tree: cKDTree,
+    bridges: list[tuple[int, int]],
+    bridge_of: np.ndarray,
+) -> int | None:
     """Where a piece of mask apart from the corridor lies beside a stretch the sequence bridged:
-    the first index of that bridged run when every pixel of ``piece`` (a bool box at column
-    ``left``, row ``top``) is nearest to a bridged sample of the sequence (``tree`` over its
-    points; ``bridged`` (N,) bool), and no farther from it than half the run's length; else None."""
+    the start of that bridged run when every pixel of ``piece`` (a bool box at column ``left``,
+    row ``top``) is nearest to a sample of it (``tree`` over the sequence's points; ``bridges``:
+    the (start, stop) runs of not-seen samples, ``bridge_of`` (N,) each sample's run, -1 where
+    seen) and no farther from it than half the run's length; else None."""
     rows, cols = np.nonzero(piece)
     distance, nearest = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
-    if not bridged[nearest].all():
+    runs = bridge_of[nearest]
+    if runs.min() < 0 or runs.min() != runs.max():
         return None
-    starts = np.flatnonzero(bridged & ~np.r_[False, bridged[:-1]])
-    ends = np.flatnonzero(bridged & ~np.r_[bridged[1:], False])
-    run = int(np.searchsorted(starts, nearest.min(), side="right")) - 1
-    if run < 0 or nearest.max() > ends[run]:
+    start, stop = bridges[int(runs[0])]
+    if distance.max() > 0.5 * (stop - start):
         return None
-    if distance.max() > 0.5 * (ends[run] - starts[run] + 1):
-        return None
-    return int(starts[run])
+    return start
 
 
 def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: float) -> np.ndarray:

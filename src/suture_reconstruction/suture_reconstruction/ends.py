@@ -250,17 +250,16 @@ def end_contrast(image: np.ndarray, sequence: np.ndarray, end: np.ndarray) -> fl
     absolute deviation) plus one grey level; 0.0 where either holds fewer than
     :data:`MIN_END_MATCHES` pixels.
     """
-    grey = image.mean(axis=2) if image.ndim == 3 else image.astype(np.float64)
     centre = np.rint(end.mean(axis=0)).astype(np.int64)
     low = np.maximum(centre - END_RADIUS_PX, 0)
-    high = np.minimum(centre + END_RADIUS_PX + 1, [grey.shape[1], grey.shape[0]])
+    high = np.minimum(centre + END_RADIUS_PX + 1, [image.shape[1], image.shape[0]])
+    window = image[low[1] : high[1], low[0] : high[0]].astype(np.float64)
+    levels = (window.mean(axis=2) if window.ndim == 3 else window).ravel()
     rows, cols = np.mgrid[low[1] : high[1], low[0] : high[0]]
     near = sequence[np.linalg.norm(sequence - centre, axis=1) <= END_RADIUS_PX + END_TISSUE_PX]
     if near.size == 0:
         return 0.0
-    pixels = np.column_stack([cols.ravel(), rows.ravel()])
-    distance = cKDTree(near).query(pixels)[0]
-    levels = grey[rows.ravel(), cols.ravel()]
+    distance = cKDTree(near).query(np.column_stack([cols.ravel(), rows.ravel()]))[0]
     thread = levels[distance <= END_CORE_PX]
     tissue = levels[(distance >= END_CORE_PX + 2.0) & (distance <= END_TISSUE_PX)]
     if thread.size < MIN_END_MATCHES or tissue.size < MIN_END_MATCHES:
