@@ -89,7 +89,7 @@ def skipped_loop_index(
     # The corridor of the narrowest thread leaves the most mask off it: too little there, none.
     if np.count_nonzero(thread & (1 - _corridor(thread.shape, points, MIN_WIDTH_PX, scale))) < min_area:
         return None
-    width = _thread_width(thread, points)
+    width = thread_width_along(thread, points)
     if width is None:  # no background around the sequence: no thread to tell a loop in
         return None
     corridor = _corridor(thread.shape, points, width, scale)
@@ -181,7 +181,7 @@ def _corridor(shape: tuple[int, int], points: np.ndarray, width: float, scale: f
     return corridor
 
 
-def _thread_width(thread: np.ndarray, points: np.ndarray) -> float | None:
+def thread_width_along(thread: np.ndarray, points: np.ndarray) -> float | None:
     """The thread's width (px): twice the median distance to the background at the sequence's
     points (the 3x3 distance transform), at least :data:`MIN_WIDTH_PX`; None where the mask
     has no background."""

@@ -16,8 +16,11 @@ behind the way it leaves, Υ / 2 to Υ away within :data:`BEHIND_HALF_ANGLE_DEG`
 strand's arm on the far side of the crossing). Both present: the sequence arrived on one strand
 and left on the other, and :func:`strand_switch_index` gives the point where it turned. A thread's
 own bends do not show this: a loop's other pass lies on the sequence itself, and a curve has no
-strand passing through it. The check starts past the hook window (``HOOK_WINDOW`` RoI radii of
-the sequence), where a hook's arms turn sharply beside each other.
+strand passing through it. "Off the sequence" is measured against the thread's width: on a
+thread several pixels wide the mask's edge lies that far from the sequence, and the edge of a
+loop's own pass would otherwise read as a strand beside it. The check starts past the hook
+window (``HOOK_WINDOW`` RoI radii of the sequence), where a hook's arms turn sharply beside each
+other.
 
 Units: pixels (u, v); the radius and angles come from the ordering's scaled parameters.
 """
@@ -29,12 +32,17 @@ import math
 import cv2
 import numpy as np
 
+from suture_ordering.skipped_loop import thread_width_along
+
 #: Mask straight on counts within this angle (deg) of the way the sequence came.
 AHEAD_HALF_ANGLE_DEG = 15.0
 #: The other strand's far arm counts within this angle (deg) of the reverse of the way out.
 BEHIND_HALF_ANGLE_DEG = 20.0
-#: Mask pixels farther than this (px at 640 px width) from the sequence are off it.
+#: Mask pixels farther than this (px at 640 px width) from the sequence are off it ...
 OFF_SEQUENCE_PX = 3.0
+#: ... and farther than half the thread's width plus this (px), since a thread's own edge lies
+#: half its width from the sequence and the sequence may sit a pixel off the thread's middle.
+OFF_EDGE_PX = 1.5
 #: Distances (in RoI radii) at which mask straight on, and the far arm behind, are looked for.
 AHEAD_REACH = np.array([1.0, 1.25, 1.5])
 BEHIND_REACH = np.array([0.5, 0.75, 1.0])
@@ -71,8 +79,10 @@ def strand_switch_index(
     origins = points[index[turning]]
     ahead = _ray_pixels(origins, came[turning], radius * AHEAD_REACH, AHEAD_HALF_ANGLE_DEG)
     behind = _ray_pixels(origins, -leaves[turning], radius * BEHIND_REACH, BEHIND_HALF_ANGLE_DEG)
+    width = thread_width_along((np.asarray(mask) > 0).astype(np.uint8), points) or 0.0
+    clearance = max(OFF_SEQUENCE_PX * scale, 0.5 * width + OFF_EDGE_PX)
     off_sequence, corner = _off_sequence(
-        mask, points, OFF_SEQUENCE_PX * scale, np.vstack((ahead.reshape(-1, 2), behind.reshape(-1, 2)))
+        mask, points, clearance, np.vstack((ahead.reshape(-1, 2), behind.reshape(-1, 2)))
     )
     both = np.flatnonzero(_any_on(off_sequence, corner, ahead) & _any_on(off_sequence, corner, behind))
     return int(index[turning[both[0]]]) if len(both) else None

@@ -85,6 +85,37 @@ def test_a_bend_and_a_loop_of_the_thread_itself_are_not_switches() -> None:
     assert strand_switch_index(_draw(loop), loop, RADIUS, TURN, START) is None
 
 
+def _looped(radius: float, advance: float) -> np.ndarray:
+    """A thread along row 240 for 150 px, then one loop of ``radius`` px (a trochoid advancing
+    ``advance`` px per turn) and on: 1 px samples."""
+    t = np.linspace(-np.pi, 3 * np.pi, 2000)
+    u, v = 200 + advance * t / (2 * np.pi) - radius * np.sin(t), 240 - radius * (1 - np.cos(t))
+    arc = np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(u), np.diff(v)))))
+    steps = np.arange(0.0, arc[-1])
+    curve = np.column_stack([np.interp(steps, arc, u), np.interp(steps, arc, v)])
+    lead = np.column_stack([np.arange(curve[0, 0] - 150, curve[0, 0]), np.full(150, curve[0, 1])])
+    return np.vstack([lead, curve])
+
+
+def test_a_thick_threads_own_loop_is_not_a_switch() -> None:
+    """A thread 8 px wide through a loop about one RoI radius across: the mask's edge lies 4 px
+    from the sequence, so the loop's own passes ahead of and behind a turn are mask beside it;
+    measured against the thread's width they are the thread itself."""
+    for radius in (18.0, 26.0, 36.0):
+        loop = _looped(radius, 100.0)
+        assert strand_switch_index(_draw(loop, width=8), loop, RADIUS, TURN, START) is None
+
+
+def test_a_thick_thread_that_took_the_other_strand_is_still_found() -> None:
+    ours = _line((100, 240), (560, 240))
+    other = _line((300 - 141.4, 240 + 141.4), (300 + 141.4, 240 - 141.4))
+    mask = _draw(ours, width=8)
+    mask[230:251, 308:338] = 0
+    mask |= _draw(other, width=8)
+    index = strand_switch_index(mask, _onto_the_other_strand(100), RADIUS, TURN, START)
+    assert index is not None and abs(index - 200) <= RADIUS / 2
+
+
 def test_nothing_is_checked_inside_the_hook_window() -> None:
     mask = _crossing(-45.0)
     switched = _onto_the_other_strand(240)
