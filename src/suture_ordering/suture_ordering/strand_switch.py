@@ -43,6 +43,8 @@ OFF_SEQUENCE_PX = 3.0
 #: ... and farther than half the thread's width plus this (px), since a thread's own edge lies
 #: half its width from the sequence and the sequence may sit a pixel off the thread's middle.
 OFF_EDGE_PX = 1.5
+#: The thread's width is measured over the rays' box widened by this much (px).
+WIDTH_MARGIN_PX = 12
 #: Distances (in RoI radii) at which mask straight on, and the far arm behind, are looked for.
 AHEAD_REACH = np.array([1.0, 1.25, 1.5])
 BEHIND_REACH = np.array([0.5, 0.75, 1.0])
@@ -79,11 +81,9 @@ def strand_switch_index(
     origins = points[index[turning]]
     ahead = _ray_pixels(origins, came[turning], radius * AHEAD_REACH, AHEAD_HALF_ANGLE_DEG)
     behind = _ray_pixels(origins, -leaves[turning], radius * BEHIND_REACH, BEHIND_HALF_ANGLE_DEG)
-    width = thread_width_along((np.asarray(mask) > 0).astype(np.uint8), points) or 0.0
-    clearance = max(OFF_SEQUENCE_PX * scale, 0.5 * width + OFF_EDGE_PX)
-    off_sequence, corner = _off_sequence(
-        mask, points, clearance, np.vstack((ahead.reshape(-1, 2), behind.reshape(-1, 2)))
-    )
+    rays = np.vstack((ahead.reshape(-1, 2), behind.reshape(-1, 2)))
+    clearance = max(OFF_SEQUENCE_PX * scale, 0.5 * _width_round(mask, points, rays) + OFF_EDGE_PX)
+    off_sequence, corner = _off_sequence(mask, points, clearance, rays)
     both = np.flatnonzero(_any_on(off_sequence, corner, ahead) & _any_on(off_sequence, corner, behind))
     return int(index[turning[both[0]]]) if len(both) else None
 
@@ -98,6 +98,20 @@ def _ray_pixels(
     u = np.round(origins[:, 0, None, None] + distances[None, :, None] * np.cos(angles)[:, None, :])
     v = np.round(origins[:, 1, None, None] + distances[None, :, None] * np.sin(angles)[:, None, :])
     return np.stack((u, v), axis=-1).astype(int).reshape(len(origins), -1, 2)
+
+
+def _width_round(mask: np.ndarray, points: np.ndarray, pixels: np.ndarray) -> float:
+    """The thread's width (px) along the stretch of ``points`` (N, 2) inside the box round
+    ``pixels`` (M, 2) int (u, v), widened by :data:`WIDTH_MARGIN_PX` so that the thread's own
+    background lies inside it; 0 where the box holds none of the sequence or no background."""
+    height, width = mask.shape
+    u0, v0 = (int(max(0, pixels[:, k].min() - WIDTH_MARGIN_PX)) for k in (0, 1))
+    u1 = int(min(width, pixels[:, 0].max() + WIDTH_MARGIN_PX + 1))
+    v1 = int(min(height, pixels[:, 1].max() + WIDTH_MARGIN_PX + 1))
+    if u0 >= u1 or v0 >= v1:
+        return 0.0
+    thread = (np.asarray(mask)[v0:v1, u0:u1] > 0).astype(np.uint8)
+    return thread_width_along(thread, points - (u0, v0)) or 0.0
 
 
 def _off_sequence(
