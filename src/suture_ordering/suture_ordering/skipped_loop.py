@@ -23,7 +23,10 @@ the sequence it stands beside. Two shapes count:
 A loop the mask broke on both sides of its crossing does not join the corridor. Such a piece
 counts as joined where its two ends come within :data:`DETACHED_GAP_WIDTHS` thread widths of the
 corridor, when nothing else of it does (another thread running beside the sequence comes near it
-all along, not at two ends), and is then a ring or a detour as above.
+all along, not at two ends), and is then a ring or a detour as above. Where the loop's other end
+stops farther off (the mask lost more of it on that side), the piece comes near at one place only
+and counts as a ring from there, unless the stretch of sequence it comes near is longer than the
+piece reaches away from it (thread beside the sequence that then turns away).
 
 Where the segmenter lost the thread round the loop as well (a pale loop on a highlight), the
 ordering bridges the gap straight across and what is left of the loop lies beside the bridge, too
@@ -113,6 +116,7 @@ def skipped_loop_index(
         piece = labels[box] == label
         rows, cols = np.nonzero(piece & touching[box])
         detached = rows.size == 0
+        end_count = 0  # of a detached piece: its parts near the corridor
         length = area / width
         if detached and bridges and length >= RING_MIN_LENGTH_PX * scale:
             at = _beside_bridge(piece, left, top, tree, bridges, bridge_of)
@@ -123,13 +127,17 @@ def skipped_loop_index(
             if near is None:
                 near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
             ends = (piece & near[box]).astype(np.uint8)
-            if cv2.connectedComponents(ends, connectivity=8)[0] - 1 != 2:
+            end_count = cv2.connectedComponents(ends, connectivity=8)[0] - 1
+            if end_count not in (1, 2):
                 continue
             rows, cols = np.nonzero(ends)
         _, joined = tree.query(np.column_stack((cols + left, rows + top)).astype(np.float64))
         joined = np.sort(joined)
         # points about 1 px apart: index differences are px of sequence (a jump counts as one)
         clusters = np.split(joined, np.flatnonzero(np.diff(joined) > JOIN_GAP_WIDTHS * width + 4 * scale) + 1)
+        one_end_near = detached and end_count == 1
+        if one_end_near and len(clusters) >= 2:
+            continue
         if len(clusters) >= 2:
             beside = clusters[-1][0] - clusters[0][-1]
             if length < DETOUR_RATIO * beside + DETOUR_EXTRA_PX * scale:
@@ -142,6 +150,8 @@ def skipped_loop_index(
             pixels = np.column_stack((cols + left, rows + top)).astype(np.float64)
             reach = float(cKDTree(points[clusters[0]]).query(pixels)[0].max())
             if at_border or length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
+                continue
+            if one_end_near and joined[-1] - joined[0] > reach:  # thread beside the sequence
                 continue
         index = int(clusters[0][0])
         first = index if first is None else min(first, index)

@@ -150,3 +150,28 @@ def test_a_stored_frame_whose_bridge_went_past_a_pale_loop_is_cut_where_the_brid
     assert distance.max() < 3.0
     nearest_end = int(np.argmin(np.hypot(*(truth - ordering.right[-1, :2]).T)))
     assert nearest_end < 0.2 * len(truth)  # the loop lies farther on
+
+
+def test_a_loop_with_one_end_near_the_sequence_is_cut_where_it_comes_near() -> None:
+    """An on-site simulator frame (self_intersected, 640x480, masks of the default on-site model
+    and their low masks): a bright loop 85 px across whose crossing the segmenter lost. The loop's
+    mask is apart from the sequence, one end 2 px from its corridor and the other 14 px, so it
+    was not taken for a ring broken at its crossing (which needs both ends near); the ordering
+    went straight across the crossing and the grasp landed 21.6 mm off. A piece that comes near
+    the corridor at one place and is a ring from there (as long as a joined ring must be) is now
+    one: both views are cut at the crossing, where the loop starts (194 px of true arc)."""
+    stored = np.load(Path(__file__).parent / "data" / "predicted_onsite_loop_one_end_near.npz")
+    height, width = (int(n) for n in stored["shape"])
+    masks = [
+        np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
+        for view in ("left", "right", "left_low", "right_low")
+    ]
+    arguments = (masks[0], masks[1], stored["hint"], StereoCamera.default(width, height))
+    off = order_stereo(*arguments, params=OrderingParams(skipped_loop_cut=False), low_masks=tuple(masks[2:]))
+    cut = order_stereo(*arguments, low_masks=tuple(masks[2:]))
+    assert off.cut == (0, 0) and min(cut.cut) > 100
+    truth = stored["truth_left"].astype(float)
+    distance = np.hypot(*(cut.left[:, None, :] - truth[None]).transpose(2, 0, 1)).min(axis=1)
+    assert distance.max() < 3.0  # what is kept lies on the thread
+    kept_arc = float(np.hypot(*np.diff(cut.left, axis=0).T).sum())
+    assert abs(kept_arc - 194) < 20
