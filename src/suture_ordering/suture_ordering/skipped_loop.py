@@ -16,9 +16,16 @@ the sequence it stands beside. Two shapes count:
 - a *detour*: mask joined to the corridor at two places along the sequence, at least
   :data:`DETOUR_RATIO` times as long as the sequence's arc between them plus
   :data:`DETOUR_EXTRA_PX`;
-- a *ring*: mask joined at one place and at least :data:`RING_LENGTH_RATIO` times as long as it
-  reaches away from the sequence, and not cut by the image border (another strand that crosses
-  the thread leaves it in a line: as long as it reaches).
+- a *ring*: mask joined at one place and not cut by the image border, either at least
+  :data:`RING_LENGTH_RATIO` times as long as it reaches away from the sequence (and at least
+  :data:`RING_MIN_LENGTH_PX`; another strand that crosses the thread leaves it in a line: as
+  long as it reaches), or leaving the thread and coming back to the same place: its skeleton at
+  least :data:`RING_MIN_LENGTH_PX` long with all its ends within :data:`DETACHED_GAP_WIDTHS`
+  thread widths of the corridor, beside a stretch of sequence (where it joins and where its ends
+  lie) shorter than its reach (a loop that leaves the thread at a small angle, the arc beside
+  the sequence inside the corridor; a hook or a strand ends away from the thread, thread beside
+  the sequence lies along a longer stretch than it reaches, and another strand crossing twice
+  comes back far along).
 
 A loop the mask broke on both sides of its crossing does not join the corridor. Such a piece
 counts as joined where its two ends come within :data:`DETACHED_GAP_WIDTHS` thread widths of the
@@ -49,6 +56,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+from skimage.morphology import skeletonize
 
 from suture_ordering.geometry import LINE_SHIFT
 from suture_ordering.not_seen import flagged_runs
@@ -149,13 +157,47 @@ def skipped_loop_index(
             rows, cols = np.nonzero(piece)
             pixels = np.column_stack((cols + left, rows + top)).astype(np.float64)
             reach = float(cKDTree(points[clusters[0]]).query(pixels)[0].max())
-            if at_border or length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
+            beside = joined[-1] - joined[0] > reach  # near a longer stretch than it reaches away
+            if at_border or (one_end_near and beside):
                 continue
-            if one_end_near and joined[-1] - joined[0] > reach:  # thread beside the sequence
-                continue
+            if length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
+                if near is None:
+                    near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
+                if not _comes_back(
+                    piece, (left, top), near[box], tree, joined, reach, RING_MIN_LENGTH_PX * scale
+                ):
+                    continue
         index = int(clusters[0][0])
         first = index if first is None else min(first, index)
     return first
+
+
+def _comes_back(
+    piece: np.ndarray,
+    corner: tuple[int, int],
+    near: np.ndarray,
+    tree: cKDTree,
+    joined: np.ndarray,
+    reach: float,
+    min_length: float,
+) -> bool:
+    """Whether ``piece`` (bool box whose first pixel is ``corner``, (u, v)) leaves the thread and
+    comes back to where it left: its skeleton is at least ``min_length`` px long, every end of it
+    lies on ``near`` (bool box), and the stretch of the sequence (``tree`` over its points) from
+    the ``joined`` indices to those nearest its ends is no longer than the piece's ``reach``
+    (px) away from it; a closed ring has no ends."""
+    skeleton = skeletonize(piece)
+    if np.count_nonzero(skeleton) < min_length:
+        return False
+    neighbours = cv2.filter2D(
+        skeleton.astype(np.uint8), -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT
+    )
+    rows, cols = np.nonzero(skeleton & (neighbours == 2))
+    if not near[rows, cols].all():
+        return False
+    _, ends = tree.query(np.column_stack((cols + corner[0], rows + corner[1])).astype(np.float64))
+    indices = np.concatenate((joined, np.atleast_1d(ends)))
+    return bool(indices.max() - indices.min() <= reach)
 
 
 def _beside_bridge(
