@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from suture_common.camera import StereoCamera
-from suture_ordering import OrderingParams, order_stereo
+from suture_ordering import OrderingParams, StereoOrdering, order_stereo
 from suture_ordering.skipped_loop import skipped_loop_index
 
 W, H = 640, 480
@@ -78,6 +78,22 @@ def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     assert skipped_loop_index(np.full((H, W), 255, np.uint8), STRAIGHT) is None  # a mask with no background
 
 
+def _ordered_without_and_with_the_cut(stored_frame: str) -> tuple[StereoOrdering, StereoOrdering, np.ndarray]:
+    """A stored frame's orderings with ``skipped_loop_cut`` off and on, and its true left
+    centreline (N, 2) float (u, v). The file holds both views' masks and low masks (packed
+    bits), their ``shape``, the tip ``hint`` and ``truth_left``."""
+    stored = np.load(Path(__file__).parent / "data" / stored_frame)
+    height, width = (int(n) for n in stored["shape"])
+    masks = [
+        np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
+        for view in ("left", "right", "left_low", "right_low")
+    ]
+    arguments = (masks[0], masks[1], stored["hint"], StereoCamera.default(width, height))
+    off = order_stereo(*arguments, params=OrderingParams(skipped_loop_cut=False), low_masks=tuple(masks[2:]))
+    cut = order_stereo(*arguments, low_masks=tuple(masks[2:]))
+    return off, cut, stored["truth_left"][:, :2].astype(float)
+
+
 @pytest.mark.parametrize(
     ("stored_frame", "loop_at_px"),
     [("predicted_loop_passed_by.npz", 110), ("predicted_loop_detached_at_its_crossing.npz", 245)],
@@ -92,18 +108,8 @@ def test_the_ordering_cuts_a_sequence_that_passed_a_loop_by(stored_frame: str, l
     sides of the crossing, and the grasp was 19.7 mm off. Cut where the loop meets the sequence,
     before the loop (``loop_at_px`` of true arc from the tip): the 3D stage finds the thread too
     short."""
-    stored = np.load(Path(__file__).parent / "data" / stored_frame)
-    height, width = (int(n) for n in stored["shape"])
-    masks = [
-        np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
-        for view in ("left", "right", "left_low", "right_low")
-    ]
-    camera = StereoCamera.default(width, height)
-    arguments = (masks[0], masks[1], stored["hint"], camera)
-    off = order_stereo(*arguments, params=OrderingParams(skipped_loop_cut=False), low_masks=tuple(masks[2:]))
-    cut = order_stereo(*arguments, low_masks=tuple(masks[2:]))
+    off, cut, truth = _ordered_without_and_with_the_cut(stored_frame)
     assert off.cut == (0, 0) and min(cut.cut) > 100
-    truth = stored["truth_left"][:, :2].astype(float)
     true_arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth, axis=0).T))])
     distance = np.hypot(*(truth - cut.left[-1]).T)
     assert distance.min() < 3 and true_arc[np.argmin(distance)] < loop_at_px  # on our thread, before the loop
@@ -178,17 +184,8 @@ def test_an_on_site_loop_the_sequence_went_past_is_cut_where_it_starts(
     sequence, and what is left, joined at one place, is 2.1 times as long as it reaches (a ring
     needs 2.2): its skeleton's ends both lie at the corridor, it leaves the thread and comes back.
     Both views are cut where the loop starts (``loop_at_px`` of true arc from the tip)."""
-    stored = np.load(Path(__file__).parent / "data" / stored_frame)
-    height, width = (int(n) for n in stored["shape"])
-    masks = [
-        np.unpackbits(stored[view])[: height * width].reshape(height, width) * 255
-        for view in ("left", "right", "left_low", "right_low")
-    ]
-    arguments = (masks[0], masks[1], stored["hint"], StereoCamera.default(width, height))
-    off = order_stereo(*arguments, params=OrderingParams(skipped_loop_cut=False), low_masks=tuple(masks[2:]))
-    cut = order_stereo(*arguments, low_masks=tuple(masks[2:]))
+    off, cut, truth = _ordered_without_and_with_the_cut(stored_frame)
     assert off.cut == (0, 0) and min(cut.cut) > 100
-    truth = stored["truth_left"].astype(float)
     distance = np.hypot(*(cut.left[:, None, :] - truth[None]).transpose(2, 0, 1)).min(axis=1)
     assert distance.max() < 3.0  # what is kept lies on the thread
     kept_arc = float(np.hypot(*np.diff(cut.left, axis=0).T).sum())
