@@ -31,9 +31,10 @@ A sequence that turns at a crossing onto the other strand, where mask straight o
 thread going on beyond a stretch the mask lost, is published cut at the crossing
 (``strand_switch_turn``, :mod:`suture_ordering.strand_switch`): the 3D stage then refuses a
 thread too short to grasp instead of grasping the other thread. So is a sequence that passes by
-a loop the mask shows beside it, cut where the loop joins it, where the ends of a loop that
-the mask broke off at its crossing come near it, or where a bridge across a stretch the mask lost
-starts that goes past what is left of a loop (``skipped_loop_cut``,
+a loop the mask shows beside it, cut where the loop joins it (a loop that leaves the thread at a
+small angle and comes back there counts too), where a loop that the mask broke off at its
+crossing comes near it, or where a bridge across a stretch the mask lost starts that goes past
+what is left of a loop (``skipped_loop_cut``,
 :mod:`suture_ordering.skipped_loop`): a grasp beyond would lie the loop's arc too far along.
 
 Parameters (read at start-up): :data:`PARAMETERS`, every field of

@@ -198,9 +198,9 @@ class OrderingParams:
         metadata=described(
             "where a sequence passes by a loop or detour that its mask (the low mask where given) "
             "shows beside it, much longer than the sequence there, it is cut where it first joins "
-            "it, where the ends of a loop the mask broke off at its crossing come near it, or where a "
-            "bridge that goes past what is left of a loop starts, so that a grasp beyond is refused as "
-            "on a thread too short (suture_ordering.skipped_loop)"
+            "it, where a loop the mask broke off at its crossing comes near it, or where a bridge that "
+            "goes past what is left of a loop starts, so that a grasp beyond is refused as on a thread "
+            "too short (suture_ordering.skipped_loop)"
         ),
     )
     wide_arc_factor: float = field(
