@@ -30,10 +30,11 @@ the sequence it stands beside. Two shapes count:
 A loop the mask broke on both sides of its crossing does not join the corridor. Such a piece
 counts as joined where its two ends come within :data:`DETACHED_GAP_WIDTHS` thread widths of the
 corridor, when nothing else of it does (another thread running beside the sequence comes near it
-all along, not at two ends), and is then a ring or a detour as above. Where the loop's other end
-stops farther off (the mask lost more of it on that side), the piece comes near at one place only
-and counts as a ring from there, unless the stretch of sequence it comes near is longer than the
-piece reaches away from it (thread beside the sequence that then turns away).
+all along, not at two ends), and is then a ring or a detour as above; its reach is measured from
+its own ends near the corridor (the gap to the sequence is what the mask lost). Where the loop's
+other end stops farther off (the mask lost more of it on that side), the piece comes near at one
+place only and counts as a ring from there, unless the stretch of sequence it comes near is
+longer than the piece reaches away from it (thread beside the sequence that then turns away).
 
 Where the segmenter lost the thread round the loop as well (a pale loop on a highlight), the
 ordering bridges the gap straight across and what is left of the loop lies beside the bridge, too
@@ -154,9 +155,10 @@ def skipped_loop_index(
             at_border = (
                 left <= 1 or top <= 1 or left + box_width >= image_width - 1 or top + box_height >= height - 1
             )
+            origin = np.column_stack((cols + left, rows + top)) if detached else points[clusters[0]]
             rows, cols = np.nonzero(piece)
             pixels = np.column_stack((cols + left, rows + top)).astype(np.float64)
-            reach = float(cKDTree(points[clusters[0]]).query(pixels)[0].max())
+            reach = float(cKDTree(origin).query(pixels)[0].max())
             beside = joined[-1] - joined[0] > reach  # near a longer stretch than it reaches away
             if at_border or (one_end_near and beside):
                 continue

@@ -68,6 +68,17 @@ def test_a_ring_the_mask_broke_on_both_sides_of_its_crossing_is_found() -> None:
     assert skipped_loop_index(_draw(STRAIGHT, far), STRAIGHT) is None
 
 
+@pytest.mark.parametrize("gap_px", [6, 9])
+def test_a_ring_whose_mask_stops_short_of_the_thread_reaches_from_its_own_end(gap_px: int) -> None:
+    """A loop of 28 px radius whose mask (2 px wide, 300 of its 360 degrees) starts ``gap_px``
+    below the thread and ends 14 px farther off: it is 2.3 times as long as it reaches from its
+    own end near the thread, but less than 2.2 times as long as it reaches from the thread, whose
+    gap the mask lost. Found where it comes near, at u = 300."""
+    ring = _ring((300, 240 + gap_px + 28), 28, -90, 300)
+    index = skipped_loop_index(_draw(STRAIGHT, ring, width=2), STRAIGHT)
+    assert index is not None and abs(STRAIGHT[index, 0] - 300) <= 10
+
+
 def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     crossing = [(200, 60), (400, 420)]  # an X with another thread
     assert skipped_loop_index(_draw(STRAIGHT, crossing), STRAIGHT) is None
