@@ -41,9 +41,9 @@ both call. Steps (paper Section II.B end and II.C):
    images, also where the thread runs under an instrument before reaching it:
    :func:`~suture_reconstruction.ends.refuse_grasp_under_occluder`), one
    uncertain by more than ``max_grasp_uncertainty_mm``, or one before which a view's sequence
-   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or before
-   which a stretch of 20 mm of arc is more than ``max_arc_image_ratio`` times the length its image
-   covers, is refused;
+   holds more than ``max_unexplained_arc_mm`` of thread the 3D thread does not explain, or near
+   which (from the cut tip to 10 mm past it) a stretch of 20 mm of arc is more than
+   ``max_arc_image_ratio`` times the length its image covers, is refused;
    so is, where the thread runs along the image rows at the grasp point (its depth not measured
    there), one that lies more than ``max_behind_surface_px`` of disparity behind the textured
    surface beside it (:mod:`suture_reconstruction.surface`; only with images), and, where no
@@ -239,7 +239,8 @@ class ReconstructionParams:
         default=2.0,
         metadata=described(
             "largest ratio of the 3D arc to the length its left image covers at the thread's depth, over "
-            f"any {1000 * RATIO_ARC_M:g} mm of arc between the cut tip and the grasp point (1 for a thread "
+            f"any {1000 * RATIO_ARC_M:g} mm of arc between the cut tip and {500 * RATIO_ARC_M:g} mm past the "
+            "grasp point (1 for a thread "
             "across the viewing rays, 2 for one 60 degrees out of the image plane); a larger one runs "
             "along the viewing rays, where its length rests on disparity alone (ArcAlongViewError)",
             (1.0, 1000.0),
@@ -445,7 +446,7 @@ def reconstruct(
         A stretch longer than ``params.max_unexplained_arc_mm`` of a view's seen sequence between
         the cut tip and the grasp point lies off the 3D thread's projection.
     ArcAlongViewError
-        A stretch of 20 mm of the 3D arc between the cut tip and the grasp point is more than
+        A stretch of 20 mm of the 3D arc between the cut tip and 10 mm past the grasp point is more than
         ``params.max_arc_image_ratio`` times the length its left image covers (it would run along
         the viewing rays).
     ThreadBehindSurfaceError

@@ -42,13 +42,14 @@ instrument before the grasp point, rather than ThreadTooShortError), one uncerta
 ``max_grasp_uncertainty_mm`` (UncertainGraspError), one on a thread whose reconstruction
 starts more than ``max_tip_gap_mm`` after the cut tip (TipNotReconstructedError), or one before
 which a view's sequence holds more than ``max_unexplained_arc_mm`` of thread that the 3D thread
-does not explain (UnexplainedArcError), or before which a stretch of 20 mm of 3D arc is more than
-``max_arc_image_ratio`` times the length its image covers (ArcAlongViewError), or that lies, where
-the thread runs along the image rows, more than ``max_behind_surface_px`` of disparity behind the
-textured surface beside it (ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`), or
-that lies on a thread crossing the image rows nowhere steeply whose cut tip or far end the images
-place more than ``max_end_disparity_gap_px`` of disparity from the reconstruction
-(EndDisparityError; :mod:`suture_reconstruction.ends`); nothing of it is published.
+does not explain (UnexplainedArcError), or near which (from the cut tip to 10 mm past it) a
+stretch of 20 mm of 3D arc is more than ``max_arc_image_ratio`` times the length its image
+covers (ArcAlongViewError), or that lies, where the thread runs along the image rows, more than
+``max_behind_surface_px`` of disparity behind the textured surface beside it
+(ThreadBehindSurfaceError; :mod:`suture_reconstruction.surface`), or that lies on a thread
+crossing the image rows nowhere steeply whose cut tip or far end the images place more than
+``max_end_disparity_gap_px`` of disparity from the reconstruction (EndDisparityError;
+:mod:`suture_reconstruction.ends`); nothing of it is published.
 """
 
 from __future__ import annotations

@@ -80,7 +80,10 @@ hook at the tip in opposite ways (down one arm first in one view, down the other
 pair each arm with its neighbour, and the depth zigzags over the hook's few millimetres of image.
 Either way the arc gained moves the grasp point, placed by arc length from the tip, along the
 thread. Over the whole arc to the grasp point a hook's zigzag is diluted by the flat thread
-beyond it; over a stretch of :data:`RATIO_ARC_M` it is not. :func:`refuse_arc_along_view` raises
+beyond it; over a stretch of :data:`RATIO_ARC_M` it is not. The stretches run on to half a
+stretch past the grasp point: where the thread dives along the rays at the grasp point, the
+part of the dive before it adds to the arc that places it, and its depth rests on disparity
+alone. :func:`refuse_arc_along_view` raises
 :class:`~suture_reconstruction.errors.ArcAlongViewError` when the ratio exceeds
 ``max_arc_image_ratio``.
 
@@ -432,9 +435,9 @@ def refuse_unexplained_arc(arc_mm: float, view: str, max_arc_mm: float) -> None:
 def arc_image_ratio(curve: ArcLengthCurve, camera: StereoCamera, grasp_arc_length: float) -> float:
     """The largest ratio of 3D arc to the length of its image in the left view (each pixel taken
     as Z / fx m at the depth of the thread there) over the stretches of :data:`RATIO_ARC_M`
-    between the cut tip and the grasp point, or over that whole arc where it is shorter; 1.0 for
-    an arc too short to measure (module docstring)."""
-    s = np.arange(0.0, min(curve.length, grasp_arc_length) + 1e-12, SAMPLE_STEP_M)
+    from the cut tip to half a stretch past the grasp point, or over that whole arc where it is
+    shorter; 1.0 for an arc too short to measure (module docstring)."""
+    s = np.arange(0.0, min(curve.length, grasp_arc_length + 0.5 * RATIO_ARC_M) + 1e-12, SAMPLE_STEP_M)
     if s.size < 2:
         return 1.0
     points = curve.at(s)
@@ -451,9 +454,10 @@ def refuse_arc_along_view(ratio: float, max_ratio: float) -> None:
     """Raise ArcAlongViewError when ``ratio`` (:func:`arc_image_ratio`) exceeds ``max_ratio``."""
     if ratio > max_ratio:
         raise ArcAlongViewError(
-            f"a stretch of {1000 * RATIO_ARC_M:g} mm of the 3D arc between the cut tip and the grasp "
-            f"point is {ratio:.1f} times the length its left image covers (more than "
-            f"max_arc_image_ratio {max_ratio:g}): the thread would run along the viewing rays, where "
+            f"a stretch of {1000 * RATIO_ARC_M:g} mm of the 3D arc between the cut tip and "
+            f"{500 * RATIO_ARC_M:g} mm past the grasp point is {ratio:.1f} times the length its left "
+            f"image covers (more than max_arc_image_ratio {max_ratio:g}): the thread would run along "
+            "the viewing rays, where "
             "its length, which places the grasp point, rests on disparity alone; usually the two "
             "views' sequences start at different thread points or go round a hook at the tip in "
             "opposite ways (check both views' masks and tips)"

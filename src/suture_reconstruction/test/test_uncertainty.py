@@ -357,3 +357,21 @@ def test_a_stretch_along_the_viewing_rays_before_the_grasp_point_is_refused(exac
     assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
     with pytest.raises(ArcAlongViewError, match=r"20 mm of the 3D arc .* 2\.\d times the length"):
         reconstruct(left, right, camera, ReconstructionParams(**lenient))
+
+
+def test_a_grasp_point_where_the_thread_dives_along_the_viewing_rays_is_refused(exact_views):
+    camera = StereoCamera.default(640, 480)
+    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
+    step = 5e-5
+    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
+    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
+    # 40 mm across the viewing rays, then 20 mm 67 degrees out of the image plane: the grasp point
+    # (50 mm) lies halfway down the dive. No stretch of 20 mm before it is twice its image (the one
+    # ending there is half across, half diving); the one from 40 to 60 mm is.
+    flat = np.array([-0.03, -0.01, 0.09]) + np.arange(0.0, 0.04, step)[:, None] * across
+    thread = np.vstack([flat, flat[-1] + np.arange(step, 0.02, step)[:, None] * along])
+    left, right = exact_views(camera, thread)
+    result = reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
+    assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
+    with pytest.raises(ArcAlongViewError, match=r"10 mm past the grasp point is 2\.\d times"):
+        reconstruct(left, right, camera, ReconstructionParams(**lenient))
