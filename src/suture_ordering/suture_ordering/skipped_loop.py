@@ -35,6 +35,10 @@ its own ends near the corridor (the gap to the sequence is what the mask lost). 
 other end stops farther off (the mask lost more of it on that side), the piece comes near at one
 place only and counts as a ring from there, unless the stretch of sequence it comes near is
 longer than the piece reaches away from it (thread beside the sequence that then turns away).
+Where the mask lost more round the crossing, both ends farther off than that, the piece counts
+as a ring when it is nearly closed: its skeleton's two ends no farther apart than
+:data:`CLOSED_CHORD_RATIO` of its length and both within :data:`CLOSED_GAP_PX` of the corridor
+(another thread's arc is open; a ring of something else lies farther off).
 
 Where the segmenter lost the thread round the loop as well (a pale loop on a highlight), the
 ordering bridges the gap straight across and what is left of the loop lies beside the bridge, too
@@ -82,6 +86,11 @@ RING_LENGTH_RATIO = 2.2
 #: A ring that does not join the corridor counts when both its ends come this many thread widths
 #: near it (a crossing's gap in the mask: the other strand's width and a little more).
 DETACHED_GAP_WIDTHS = 2.5
+#: A ring apart from the corridor, its ends farther off, counts when its two ends are no farther
+#: apart than this share of its length (a nearly closed ring: the mask lost its crossing) ...
+CLOSED_CHORD_RATIO = 0.3
+#: ... and both lie within this (px) of the corridor (what a segmenter loses round a crossing).
+CLOSED_GAP_PX = 20.0
 
 
 def skipped_loop_index(
@@ -112,6 +121,7 @@ def skipped_loop_index(
         return None
     touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
     near: np.ndarray | None = None  # within DETACHED_GAP_WIDTHS of the corridor, once a piece needs it
+    away = np.zeros(0)  # each pixel's distance from the corridor (px), computed with near
     bridges = [] if not_seen is None else flagged_runs(not_seen)
     bridge_of = np.full(len(points), -1)  # each sample's bridged run, -1 where seen
     for number, (start, stop) in enumerate(bridges):
@@ -134,9 +144,17 @@ def skipped_loop_index(
                 continue
         if detached:
             if near is None:
-                near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
+                away = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3)
+                near = away <= DETACHED_GAP_WIDTHS * width
             ends = (piece & near[box]).astype(np.uint8)
             end_count = cv2.connectedComponents(ends, connectivity=8)[0] - 1
+            if end_count == 0 and length >= RING_MIN_LENGTH_PX * scale:
+                at = _closed_ring(
+                    piece, (left, top), away[box], tree, RING_MIN_LENGTH_PX * scale, CLOSED_GAP_PX * scale
+                )
+                if at is not None:
+                    first = at if first is None else min(first, at)
+                continue
             if end_count not in (1, 2):
                 continue
             rows, cols = np.nonzero(ends)
@@ -164,7 +182,8 @@ def skipped_loop_index(
                 continue
             if length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
                 if near is None:
-                    near = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3) <= DETACHED_GAP_WIDTHS * width
+                    away = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3)
+                    near = away <= DETACHED_GAP_WIDTHS * width
                 if not _comes_back(
                     piece, (left, top), near[box], tree, joined, reach, RING_MIN_LENGTH_PX * scale
                 ):
@@ -172,6 +191,31 @@ def skipped_loop_index(
         index = int(clusters[0][0])
         first = index if first is None else min(first, index)
     return first
+
+
+def _closed_ring(
+    piece: np.ndarray, corner: tuple[int, int], away: np.ndarray, tree: cKDTree, min_length: float, gap: float
+) -> int | None:
+    """Where a nearly closed ring apart from the corridor opens towards the sequence: the index
+    nearest the middle of its opening, when ``piece`` (bool box whose first pixel is ``corner``)
+    has a skeleton at least ``min_length`` px long with two ends no farther apart than
+    :data:`CLOSED_CHORD_RATIO` of its length, both within ``gap`` px of the corridor (``away``,
+    each pixel's distance from it, the same box); else None."""
+    skeleton = skeletonize(piece)
+    length = np.count_nonzero(skeleton)
+    if length < min_length:
+        return None
+    neighbours = cv2.filter2D(
+        skeleton.astype(np.uint8), -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT
+    )
+    rows, cols = np.nonzero(skeleton & (neighbours == 2))
+    if rows.size != 2:
+        return None
+    chord = float(np.hypot(cols[0] - cols[1], rows[0] - rows[1]))
+    if chord > CLOSED_CHORD_RATIO * length or away[rows, cols].max() > gap:
+        return None
+    opening = (cols.mean() + corner[0], rows.mean() + corner[1])
+    return int(tree.query(opening)[1])
 
 
 def _comes_back(

@@ -79,6 +79,22 @@ def test_a_ring_whose_mask_stops_short_of_the_thread_reaches_from_its_own_end(ga
     assert index is not None and abs(STRAIGHT[index, 0] - 300) <= 10
 
 
+def test_a_nearly_closed_ring_apart_from_the_sequence_is_found_where_it_opens() -> None:
+    """A loop of 30 px radius 16 px below the thread whose mask lost 50 degrees at its top (its
+    crossing): its ends lie 19 px from the thread, too far to count as near it, but they are 25 px
+    apart and it is 160 px long. Found at u = 300. The same ring opening away from the thread, an
+    arc of 200 degrees, and the ring 13 px lower (its ends 32 px from the thread) are not loops."""
+    closed = _ring((300, 240 + 16 + 30), 30, -65, 310)
+    index = skipped_loop_index(_draw(STRAIGHT, closed, width=2), STRAIGHT)
+    assert index is not None and abs(STRAIGHT[index, 0] - 300) <= 10
+    away = _ring((300, 240 + 16 + 30), 30, 115, 310)
+    assert skipped_loop_index(_draw(STRAIGHT, away, width=2), STRAIGHT) is None
+    arc = _ring((300, 240 + 16 + 30), 30, -10, 200)
+    assert skipped_loop_index(_draw(STRAIGHT, arc, width=2), STRAIGHT) is None
+    lower = _ring((300, 240 + 29 + 30), 30, -65, 310)
+    assert skipped_loop_index(_draw(STRAIGHT, lower, width=2), STRAIGHT) is None
+
+
 def test_crossing_strands_and_strands_leaving_the_image_are_not_loops() -> None:
     crossing = [(200, 60), (400, 420)]  # an X with another thread
     assert skipped_loop_index(_draw(STRAIGHT, crossing), STRAIGHT) is None
@@ -180,7 +196,11 @@ def test_thread_beside_the_sequence_and_a_hook_that_joins_it_are_not_loops() -> 
 
 @pytest.mark.parametrize(
     ("stored_frame", "loop_at_px"),
-    [("predicted_onsite_loop_one_end_near.npz", 194), ("predicted_onsite_loop_at_a_small_angle.npz", 140)],
+    [
+        ("predicted_onsite_loop_one_end_near.npz", 194),
+        ("predicted_onsite_loop_at_a_small_angle.npz", 140),
+        ("predicted_onsite_nearly_closed_loop_apart.npz", 143),
+    ],
 )
 def test_an_on_site_loop_the_sequence_went_past_is_cut_where_it_starts(
     stored_frame: str, loop_at_px: float
@@ -194,7 +214,10 @@ def test_an_on_site_loop_the_sequence_went_past_is_cut_where_it_starts(
     42 px across that leaves the thread at a small angle; the corridor takes the arc beside the
     sequence, and what is left, joined at one place, is 2.1 times as long as it reaches (a ring
     needs 2.2): its skeleton's ends both lie at the corridor, it leaves the thread and comes back.
-    Both views are cut where the loop starts (``loop_at_px`` of true arc from the tip)."""
+    ``predicted_onsite_nearly_closed_loop_apart``: a bright loop 65 px across whose mask the
+    segmenter broke on both sides of its crossing, 11-17 px from the sequence (28.6 mm off): apart
+    from the corridor, a nearly closed ring that opens towards it. Both views are cut where the
+    loop starts (``loop_at_px`` of true arc from the tip)."""
     off, cut, truth = _ordered_without_and_with_the_cut(stored_frame)
     assert off.cut == (0, 0) and min(cut.cut) > 100
     distance = np.hypot(*(cut.left[:, None, :] - truth[None]).transpose(2, 0, 1)).min(axis=1)
