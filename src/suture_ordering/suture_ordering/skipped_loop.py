@@ -201,6 +201,8 @@ def _closed_ring(
     has a skeleton at least ``min_length`` px long with two ends no farther apart than
     :data:`CLOSED_CHORD_RATIO` of its length, both within ``gap`` px of the corridor (``away``,
     each pixel's distance from it, the same box); else None."""
+    if away[piece].min() > gap:  # its ends cannot be nearer; skips the skeleton of far threads
+        return None
     skeleton = skeletonize(piece)
     length = np.count_nonzero(skeleton)
     if length < min_length:
