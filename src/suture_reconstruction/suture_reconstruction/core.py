@@ -240,9 +240,9 @@ class ReconstructionParams:
         metadata=described(
             "largest ratio of the 3D arc to the length its left image covers at the thread's depth, over "
             f"any {1000 * RATIO_ARC_M:g} mm of arc between the cut tip and {500 * RATIO_ARC_M:g} mm past the "
-            "grasp point (1 for a thread "
-            "across the viewing rays, 2 for one 60 degrees out of the image plane); a larger one runs "
-            "along the viewing rays, where its length rests on disparity alone (ArcAlongViewError)",
+            "grasp point (1 for a thread across the viewing rays, 2 for one 60 degrees out of the image "
+            "plane); a larger one runs along the viewing rays, where its length rests on disparity alone "
+            "(ArcAlongViewError)",
             (1.0, 1000.0),
         ),
     )
@@ -446,9 +446,9 @@ def reconstruct(
         A stretch longer than ``params.max_unexplained_arc_mm`` of a view's seen sequence between
         the cut tip and the grasp point lies off the 3D thread's projection.
     ArcAlongViewError
-        A stretch of 20 mm of the 3D arc between the cut tip and 10 mm past the grasp point is more than
-        ``params.max_arc_image_ratio`` times the length its left image covers (it would run along
-        the viewing rays).
+        A stretch of 20 mm of the 3D arc between the cut tip and 10 mm past the grasp point is
+        more than ``params.max_arc_image_ratio`` times the length its left image covers (it would
+        run along the viewing rays).
     ThreadBehindSurfaceError
         With ``images``: the thread runs along the image rows at the grasp point and lies more than
         ``params.max_behind_surface_px`` of disparity behind the surface beside it.

@@ -83,9 +83,8 @@ thread. Over the whole arc to the grasp point a hook's zigzag is diluted by the 
 beyond it; over a stretch of :data:`RATIO_ARC_M` it is not. The stretches run on to half a
 stretch past the grasp point: where the thread dives along the rays at the grasp point, the
 part of the dive before it adds to the arc that places it, and its depth rests on disparity
-alone. :func:`refuse_arc_along_view` raises
-:class:`~suture_reconstruction.errors.ArcAlongViewError` when the ratio exceeds
-``max_arc_image_ratio``.
+alone. :func:`refuse_arc_along_view` raises :class:`~suture_reconstruction.errors.
+ArcAlongViewError` when the ratio exceeds ``max_arc_image_ratio``.
 
 Units: metres for 3D points and arc lengths, pixels in the images, millimetres for the
 uncertainty.
@@ -457,8 +456,7 @@ def refuse_arc_along_view(ratio: float, max_ratio: float) -> None:
             f"a stretch of {1000 * RATIO_ARC_M:g} mm of the 3D arc between the cut tip and "
             f"{500 * RATIO_ARC_M:g} mm past the grasp point is {ratio:.1f} times the length its left "
             f"image covers (more than max_arc_image_ratio {max_ratio:g}): the thread would run along "
-            "the viewing rays, where "
-            "its length, which places the grasp point, rests on disparity alone; usually the two "
-            "views' sequences start at different thread points or go round a hook at the tip in "
-            "opposite ways (check both views' masks and tips)"
+            "the viewing rays, where its length, which places the grasp point, rests on disparity "
+            "alone; usually the two views' sequences start at different thread points or go round a "
+            "hook at the tip in opposite ways (check both views' masks and tips)"
         )
