@@ -320,58 +320,58 @@ def test_a_loop_at_the_tip_that_one_view_cut_across_is_refused(exact_views):
         ReconstructionParams(max_unexplained_arc_mm=0.0)
 
 
+# A thread's direction across the viewing rays, and one 67 degrees out of the image plane.
+ACROSS = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
+ALONG = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
+LENIENT = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
+STEP_M = 5e-5
+
+
+def _bent_thread(
+    start: list[float], first: np.ndarray, first_m: float, second: np.ndarray, second_m: float
+) -> np.ndarray:
+    """(N, 3) a thread sampled every STEP_M m: ``first_m`` along ``first`` from ``start``, then
+    ``second_m`` along ``second``."""
+    head = np.asarray(start) + np.arange(0.0, first_m, STEP_M)[:, None] * first
+    return np.vstack([head, head[-1] + np.arange(STEP_M, second_m, STEP_M)[:, None] * second])
+
+
+def _grasped_at_ratio_3_refused_at_2(exact_views, thread: np.ndarray, message: str) -> None:
+    """``thread`` is grasped at its 50 mm point with ``max_arc_image_ratio`` 3 and refused with
+    ``message`` at the default 2."""
+    camera = StereoCamera.default(640, 480)
+    left, right = exact_views(camera, thread)
+    result = reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **LENIENT))
+    assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
+    with pytest.raises(ArcAlongViewError, match=message):
+        reconstruct(left, right, camera, ReconstructionParams(**LENIENT))
+
+
 def test_an_arc_along_the_viewing_rays_is_refused(exact_views):
     camera = StereoCamera.default(640, 480)
-    s = np.arange(0.0, 0.07, 5e-5)[:, None]
-    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
-    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
-    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
-    params = ReconstructionParams(**lenient)
+    s = np.arange(0.0, 0.07, STEP_M)[:, None]
     # A thread running across the viewing rays: its arc is about the length its image covers.
-    flat = np.array([-0.03, -0.01, 0.09]) + s * across
-    result = reconstruct(*exact_views(camera, flat), camera, params)
+    flat = np.array([-0.03, -0.01, 0.09]) + s * ACROSS
+    result = reconstruct(*exact_views(camera, flat), camera, ReconstructionParams(**LENIENT))
     assert np.linalg.norm(result.grasp_position - flat[1000]) < 0.002
     # One 67 degrees out of the image plane: 50 mm of arc cover 20 mm of image.
-    steep = np.array([-0.01, -0.01, 0.07]) + s * along
-    left, right = exact_views(camera, steep)
-    reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
-    with pytest.raises(ArcAlongViewError, match=r"2\.\d times the length its left image covers"):
-        reconstruct(left, right, camera, params)
+    steep = np.array([-0.01, -0.01, 0.07]) + s * ALONG
+    _grasped_at_ratio_3_refused_at_2(exact_views, steep, r"2\.\d times the length its left image covers")
     with pytest.raises(ValueError, match="max_arc_image_ratio"):
         ReconstructionParams(max_arc_image_ratio=0.5)
 
 
 def test_a_stretch_along_the_viewing_rays_before_the_grasp_point_is_refused(exact_views):
-    camera = StereoCamera.default(640, 480)
-    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
-    step = 5e-5
-    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
-    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
     # 20 mm from the cut tip 67 degrees out of the image plane, then across the viewing rays. Over
     # the whole 50 mm to the grasp point the 3D arc is only about 1.6 times its image, so the
     # diving stretch is seen only over a window of its own length.
-    dive = np.array([0.0, 0.0, 0.07]) + np.arange(0.0, 0.02, step)[:, None] * along
-    thread = np.vstack([dive, dive[-1] + np.arange(step, 0.06, step)[:, None] * across])
-    left, right = exact_views(camera, thread)
-    result = reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
-    assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
-    with pytest.raises(ArcAlongViewError, match=r"20 mm of the 3D arc .* 2\.\d times the length"):
-        reconstruct(left, right, camera, ReconstructionParams(**lenient))
+    thread = _bent_thread([0.0, 0.0, 0.07], ALONG, 0.02, ACROSS, 0.06)
+    _grasped_at_ratio_3_refused_at_2(exact_views, thread, r"20 mm of the 3D arc .* 2\.\d times the length")
 
 
 def test_a_grasp_point_where_the_thread_dives_along_the_viewing_rays_is_refused(exact_views):
-    camera = StereoCamera.default(640, 480)
-    lenient = dict(max_grasp_uncertainty_mm=1000.0, max_unexplained_arc_mm=1000.0)
-    step = 5e-5
-    across = np.array([0.85, 0.25, 0.46]) / np.linalg.norm([0.85, 0.25, 0.46])
-    along = np.array([0.33, 0.2, 0.92]) / np.linalg.norm([0.33, 0.2, 0.92])
     # 40 mm across the viewing rays, then 20 mm 67 degrees out of the image plane: the grasp point
     # (50 mm) lies halfway down the dive. No stretch of 20 mm before it is twice its image (the one
     # ending there is half across, half diving); the one from 40 to 60 mm is.
-    flat = np.array([-0.03, -0.01, 0.09]) + np.arange(0.0, 0.04, step)[:, None] * across
-    thread = np.vstack([flat, flat[-1] + np.arange(step, 0.02, step)[:, None] * along])
-    left, right = exact_views(camera, thread)
-    result = reconstruct(left, right, camera, ReconstructionParams(max_arc_image_ratio=3.0, **lenient))
-    assert np.linalg.norm(result.grasp_position - thread[1000]) < 0.002
-    with pytest.raises(ArcAlongViewError, match=r"10 mm past the grasp point is 2\.\d times"):
-        reconstruct(left, right, camera, ReconstructionParams(**lenient))
+    thread = _bent_thread([-0.03, -0.01, 0.09], ACROSS, 0.04, ALONG, 0.02)
+    _grasped_at_ratio_3_refused_at_2(exact_views, thread, r"10 mm past the grasp point is 2\.\d times")
