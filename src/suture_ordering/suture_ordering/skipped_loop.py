@@ -65,6 +65,7 @@ from skimage.morphology import skeletonize
 
 from suture_ordering.geometry import LINE_SHIFT
 from suture_ordering.not_seen import flagged_runs
+from suture_ordering.tip import end_pixels
 
 #: Mask pixels farther than the thread's half width plus this (px) from the sequence are off it.
 CORRIDOR_MARGIN_PX = 1.5
@@ -120,8 +121,8 @@ def skipped_loop_index(
     if large.size == 0:
         return None
     touching = cv2.dilate(corridor, np.ones((3, 3), np.uint8)) > 0
-    near: np.ndarray | None = None  # within DETACHED_GAP_WIDTHS of the corridor, once a piece needs it
-    away = np.zeros(0)  # each pixel's distance from the corridor (px), computed with near
+    away: np.ndarray | None = None  # each pixel's distance from the corridor (px), once a piece needs it
+    near_px = DETACHED_GAP_WIDTHS * width
     bridges = [] if not_seen is None else flagged_runs(not_seen)
     bridge_of = np.full(len(points), -1)  # each sample's bridged run, -1 where seen
     for number, (start, stop) in enumerate(bridges):
@@ -143,10 +144,9 @@ def skipped_loop_index(
                 first = at if first is None else min(first, at)
                 continue
         if detached:
-            if near is None:
+            if away is None:
                 away = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3)
-                near = away <= DETACHED_GAP_WIDTHS * width
-            ends = (piece & near[box]).astype(np.uint8)
+            ends = (piece & (away[box] <= near_px)).astype(np.uint8)
             end_count = cv2.connectedComponents(ends, connectivity=8)[0] - 1
             if end_count == 0 and length >= RING_MIN_LENGTH_PX * scale:
                 at = _closed_ring(
@@ -174,18 +174,17 @@ def skipped_loop_index(
                 left <= 1 or top <= 1 or left + box_width >= image_width - 1 or top + box_height >= height - 1
             )
             origin = np.column_stack((cols + left, rows + top)) if detached else points[clusters[0]]
-            rows, cols = np.nonzero(piece)
-            pixels = np.column_stack((cols + left, rows + top)).astype(np.float64)
+            piece_rows, piece_cols = np.nonzero(piece)
+            pixels = np.column_stack((piece_cols + left, piece_rows + top)).astype(np.float64)
             reach = float(cKDTree(origin).query(pixels)[0].max())
             beside = joined[-1] - joined[0] > reach  # near a longer stretch than it reaches away
             if at_border or (one_end_near and beside):
                 continue
             if length < max(RING_MIN_LENGTH_PX * scale, RING_LENGTH_RATIO * reach):
-                if near is None:
+                if away is None:
                     away = cv2.distanceTransform(1 - corridor, cv2.DIST_L2, 3)
-                    near = away <= DETACHED_GAP_WIDTHS * width
                 if not _comes_back(
-                    piece, (left, top), near[box], tree, joined, reach, RING_MIN_LENGTH_PX * scale
+                    piece, (left, top), away[box] <= near_px, tree, joined, reach, RING_MIN_LENGTH_PX * scale
                 ):
                     continue
         index = int(clusters[0][0])
@@ -207,17 +206,13 @@ def _closed_ring(
     length = np.count_nonzero(skeleton)
     if length < min_length:
         return None
-    neighbours = cv2.filter2D(
-        skeleton.astype(np.uint8), -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT
-    )
-    rows, cols = np.nonzero(skeleton & (neighbours == 2))
-    if rows.size != 2:
+    ends = end_pixels(skeleton)  # (u, v) in the box
+    if len(ends) != 2:
         return None
-    chord = float(np.hypot(cols[0] - cols[1], rows[0] - rows[1]))
-    if chord > CLOSED_CHORD_RATIO * length or away[rows, cols].max() > gap:
+    chord = float(np.hypot(*(ends[0] - ends[1])))
+    if chord > CLOSED_CHORD_RATIO * length or away[ends[:, 1], ends[:, 0]].max() > gap:
         return None
-    opening = (cols.mean() + corner[0], rows.mean() + corner[1])
-    return int(tree.query(opening)[1])
+    return int(tree.query(ends.mean(axis=0) + corner)[1])
 
 
 def _comes_back(
@@ -237,14 +232,11 @@ def _comes_back(
     skeleton = skeletonize(piece)
     if np.count_nonzero(skeleton) < min_length:
         return False
-    neighbours = cv2.filter2D(
-        skeleton.astype(np.uint8), -1, np.ones((3, 3), np.float32), borderType=cv2.BORDER_CONSTANT
-    )
-    rows, cols = np.nonzero(skeleton & (neighbours == 2))
-    if not near[rows, cols].all():
+    ends = end_pixels(skeleton)  # (u, v) in the box
+    if not near[ends[:, 1], ends[:, 0]].all():
         return False
-    _, ends = tree.query(np.column_stack((cols + corner[0], rows + corner[1])).astype(np.float64))
-    indices = np.concatenate((joined, np.atleast_1d(ends)))
+    _, nearest = tree.query((ends + corner).astype(np.float64))
+    indices = np.concatenate((joined, np.atleast_1d(nearest)))
     return bool(indices.max() - indices.min() <= reach)
 
 

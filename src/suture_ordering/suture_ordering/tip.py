@@ -39,7 +39,7 @@ _NEIGHBOURS = np.array([[1, 1, 1], [1, 0, 1], [1, 1, 1]], dtype=np.float32)
 
 def free_ends(mask: np.ndarray) -> np.ndarray:
     """(K, 2) int (u, v) end points of the skeleton of ``mask`` ((H, W) uint8 0/1 or bool)."""
-    return _end_pixels(skeletonize(np.asarray(mask, dtype=bool)))
+    return end_pixels(skeletonize(np.asarray(mask, dtype=bool)))
 
 
 def thinned_free_ends(mask: np.ndarray) -> np.ndarray:
@@ -47,10 +47,11 @@ def thinned_free_ends(mask: np.ndarray) -> np.ndarray:
     :func:`skimage.morphology.thin`. :func:`free_ends`' skeleton (Zhang's thinning) can lose half
     of a thin diagonal thread from its end (36 px of a thread drawn four pixels a row whose end
     tapers); this thinning keeps the end, with more spurs on a wide or ragged mask."""
-    return _end_pixels(thin(np.asarray(mask, dtype=bool)))
+    return end_pixels(thin(np.asarray(mask, dtype=bool)))
 
 
-def _end_pixels(skeleton: np.ndarray) -> np.ndarray:
+def end_pixels(skeleton: np.ndarray) -> np.ndarray:
+    """(K, 2) int (u, v) pixels of ``skeleton`` ((H, W) bool or 0/1) with one skeleton neighbour."""
     skeleton = skeleton.astype(np.uint8)
     count = cv2.filter2D(skeleton, cv2.CV_8U, _NEIGHBOURS, borderType=cv2.BORDER_CONSTANT)
     v, u = np.nonzero((skeleton == 1) & (count == 1))
